@@ -1,0 +1,88 @@
+"""The ``scanrig`` command line.
+
+Each verb lives in its own module ``scanrig/cli/<verb>.py`` that defines ``command(...)`` with
+typer annotations; this module finds them, so adding a verb touches no other file. Verb modules
+import their heavy dependencies inside ``command`` so that ``scanrig --help`` starts fast.
+
+Exit status: 0 success; 2 bad input (one line naming the file or argument); 1 internal failure;
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+import traceback
+
+import typer
+
+import scanrig
+from scanrig.errors import InputError, ScanrigError
+
+#: Verbs in pipeline order for ``--help``; discovered verbs not listed here follow alphabetically.
+VERB_ORDER = ("simulate", "calibrate", "relocate", "detect", "reconstruct", "filter", "scan",
+              "evaluate", "report", "design", "export", "demo")
+ISSUES_HINT = "this is a bug in scanrig; please report it with the command line and the traceback above"
+
+
+def _version_callback(value: bool):
+    if value:
+        typer.echo(f"scanrig {scanrig.__version__}")
+        raise typer.Exit()
+
+
+def build_app() -> typer.Typer:
+    """The typer application with every verb module found in :mod:`scanrig.cli`."""
+    app = typer.Typer(
+        name="scanrig",
+        help="Multi-camera laser triangulation: calibrate, detect, reconstruct, filter.",
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+    )
+
+    @app.callback()
+    def _root(
+        version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                     help="Print the version and exit."),
+    ):
+        """Multi-camera laser triangulation: calibrate, detect, reconstruct, filter."""
+
+    package = importlib.import_module("scanrig.cli")
+    found = [m.name for m in pkgutil.iter_modules(package.__path__) if m.name not in ("main", "common")]
+    rank = {v: i for i, v in enumerate(VERB_ORDER)}
+    for name in sorted(found, key=lambda n: (rank.get(n, len(rank)), n)):
+        module = importlib.import_module(f"scanrig.cli.{name}")
+        if hasattr(module, "command"):
+            app.command(name=name)(module.command)
+    return app
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status instead of raising ``SystemExit``."""
+    app = build_app()
+    try:
+        # Standalone mode: typer reports its own usage errors (exit 2) and --help/--version (0).
+        app(args=argv, prog_name="scanrig", standalone_mode=True)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except InputError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        return 2
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        return 130
+    except ScanrigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        return 1
+    except Exception:  # noqa: BLE001 - the last line of defence turns a crash into exit 1
+        traceback.print_exc()
+        typer.echo(f"internal error: {ISSUES_HINT}", err=True)
+        return 1
+    return 0
+
+
+def run() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

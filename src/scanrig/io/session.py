@@ -1,0 +1,200 @@
+"""The session folder (DESIGN.md §4): the contract between rigs, simulator, CLI and tests.
+
+::
+
+    SESSION/
+      session.toml                 optional: camera order, laser colour and mode, target file
+      target.toml                  the calibration target
+      calibration/<camera>/<shot>.<png|jpg|tif>
+      scan/<camera>/<frame>.<png|jpg|tif>     (+ optional dark.<ext>, the laser-off frame)
+      rig.toml, traces.parquet, points.ply, surface.ply, mesh.ply, report.html
+      truth/                       simulator only
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.io.toml_fields import check_keys, read_toml
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+#: Stem of the optional laser-off frame in ``scan/<camera>/``.
+DARK_STEM = "dark"
+STAGES = ("calibration", "scan")
+_SESSION_KEYS = ("cameras", "laser_color", "laser_mode", "target", "seed", "created_by", "notes")
+
+
+def natural_key(text: str):
+    """Sort key that orders embedded numbers numerically: ``cam2`` before ``cam10``."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]
+
+
+@dataclass(frozen=True)
+class Session:
+    """A session folder on disk.
+
+    Parameters
+    ----------
+    root : Path
+        The folder.
+    """
+
+    root: Path
+
+    def __post_init__(self):
+        object.__setattr__(self, "root", Path(self.root))
+        if not self.root.is_dir():
+            raise FileFormatError(self.root, "session folder not found")
+
+    # --- files ----------------------------------------------------------------------------
+    @property
+    def rig_path(self) -> Path:
+        return self.root / "rig.toml"
+
+    @property
+    def target_path(self) -> Path:
+        return self.root / self.settings().get("target", "target.toml")
+
+    @property
+    def traces_path(self) -> Path:
+        return self.root / "traces.parquet"
+
+    @property
+    def points_path(self) -> Path:
+        return self.root / "points.ply"
+
+    @property
+    def truth_dir(self) -> Path:
+        return self.root / "truth"
+
+    def settings(self) -> dict:
+        """The parsed ``session.toml`` (empty when absent)."""
+        path = self.root / "session.toml"
+        if not path.exists():
+            return {}
+        doc = read_toml(path)
+        check_keys(doc, _SESSION_KEYS, (), path, "top level")
+        cams = doc.get("cameras")
+        if cams is not None and (not isinstance(cams, list) or not all(isinstance(c, str) for c in cams)):
+            raise FileFormatError(path, f"cameras must be a list of folder names, got {cams!r}")
+        return doc
+
+    # --- cameras and images --------------------------------------------------------------------
+    def camera_names(self, stage: str) -> list[str]:
+        """Camera names of a stage folder, in ``session.toml`` order or natural order.
+
+        Parameters
+        ----------
+        stage : {"calibration", "scan"}
+
+        Raises
+        ------
+        FileFormatError
+            If the stage folder is missing or empty, or ``session.toml`` names a camera whose
+            folder is missing.
+        """
+        folder = self._stage_dir(stage)
+        present = sorted((p.name for p in folder.iterdir() if p.is_dir()), key=natural_key)
+        if not present:
+            raise FileFormatError(folder, "no camera folders found")
+        order = self.settings().get("cameras")
+        if order is None:
+            return present
+        missing = [c for c in order if c not in present]
+        if missing:
+            raise FileFormatError(folder, f"camera folders {missing} named in session.toml are missing")
+        return list(order)
+
+    def image_paths(self, stage: str, camera: str) -> dict[str, Path]:
+        """``stem -> path`` of a camera's images in a stage, in natural order (dark frame excluded)."""
+        folder = self._stage_dir(stage) / camera
+        if not folder.is_dir():
+            raise FileFormatError(folder, "camera folder not found")
+        paths = {}
+        for p in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
+            if p.suffix.lower() in IMAGE_SUFFIXES and p.stem != DARK_STEM:
+                if p.stem in paths:
+                    raise FileFormatError(p, f"two images share the stem {p.stem!r} (also {paths[p.stem].name})")
+                paths[p.stem] = p
+        return paths
+
+    def dark_path(self, camera: str) -> Path | None:
+        """The laser-off frame of a camera in ``scan/``, if there is one."""
+        for suffix in IMAGE_SUFFIXES:
+            p = self.root / "scan" / camera / f"{DARK_STEM}{suffix}"
+            if p.exists():
+                return p
+        return None
+
+    def frames(self, stage: str, cameras: list[str] | None = None) -> dict[str, dict[str, Path]]:
+        """``stem -> {camera: path}`` for every stem seen by any camera, in natural order.
+
+        A stem missing in some cameras simply lacks those keys (a camera had no view or dropped
+        the frame); callers decide whether that is acceptable.
+        """
+        cameras = cameras or self.camera_names(stage)
+        by_stem: dict[str, dict[str, Path]] = {}
+        for cam in cameras:
+            for stem, path in self.image_paths(stage, cam).items():
+                by_stem.setdefault(stem, {})[cam] = path
+        return {s: by_stem[s] for s in sorted(by_stem, key=natural_key)}
+
+    def _stage_dir(self, stage: str) -> Path:
+        if stage not in STAGES:
+            raise InputError(f"stage must be one of {STAGES}, got {stage!r}")
+        folder = self.root / stage
+        if not folder.is_dir():
+            raise FileFormatError(folder, f"{stage} folder not found in session")
+        return folder
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit image as stored (grey ``(H, W)`` or colour ``(H, W, 3)`` in RGB order).
+
+    Raises
+    ------
+    FileFormatError
+        If the file is missing, unreadable, truncated, empty, or not 8/16-bit.
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(path, "image file not found")
+    data = np.fromfile(path, dtype=np.uint8)
+    if data.size == 0:
+        raise FileFormatError(path, "image file is empty")
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise FileFormatError(path, "cannot decode image (unreadable or truncated file)")
+    if img.dtype not in (np.uint8, np.uint16):
+        raise FileFormatError(path, f"expected an 8- or 16-bit image, got {img.dtype}")
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = img[:, :, :3]
+        elif img.shape[2] != 3:
+            raise FileFormatError(path, f"expected 1 or 3 channels, got {img.shape[2]}")
+        img = np.ascontiguousarray(img[:, :, ::-1])
+    return img
+
+
+def write_image(path: str | Path, image: np.ndarray) -> None:
+    """Write an 8- or 16-bit grey or RGB image atomically (format from the suffix; PNG is lossless)."""
+    import cv2
+
+    from scanrig.io.atomic import write_bytes_atomic
+
+    path = Path(path)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"image for {path} must be uint8 or uint16, got {image.dtype}")
+    if image.ndim == 3:
+        image = image[:, :, ::-1]
+    ok, buf = cv2.imencode(path.suffix, image)
+    if not ok:
+        raise FileFormatError(path, f"cannot encode an image as {path.suffix!r}")
+    write_bytes_atomic(path, buf.tobytes())
