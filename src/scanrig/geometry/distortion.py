@@ -14,6 +14,8 @@ sensor model (``tau_x, tau_y``, the 14-coefficient variant) is not supported.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from scanrig.errors import InputError
@@ -29,7 +31,9 @@ MODEL_COEFFICIENTS: dict[str, tuple[str, ...]] = {
 
 N_FULL = 12
 
-#: Newton iterations allowed when undistorting; quadratic convergence needs 4-6 away from a fold.
+#: Plain Newton iterations tried on every point; quadratic convergence needs 3-6 away from a fold.
+UNDISTORT_FAST_ITER = 8
+#: Damped Newton iterations allowed for the points the fast path leaves (near a fold).
 UNDISTORT_MAX_ITER = 40
 #: Residual (normalised units) at which undistortion has converged: 1e-12 is ~1e-9 px at f = 1000 px.
 UNDISTORT_TOL = 1e-12
@@ -101,6 +105,49 @@ def distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
     return out
 
 
+def _distort_and_jacobian_xy(x: np.ndarray, y: np.ndarray, d: np.ndarray):
+    """Distorted coordinates and the four entries of ``d xy_d / d xy`` as arrays.
+
+    Shared by the Newton solve, the fold check and :func:`distort_with_jacobians`; kept free of
+    the (N, 2, 12) coefficient Jacobian, and skipping the rational and thin-prism terms when
+    their coefficients are zero, because it is the hot loop of undistortion.
+
+    Returns
+    -------
+    xd, yd, j00, j01, j10, j11, r2, den : ndarray
+        Same shape as ``x``; ``den`` is the rational denominator (1 without k4..k6).
+    """
+    k1, k2, p1, p2, k3, k4, k5, k6 = d[:8]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)
+    den = 1.0
+    if k4 or k5 or k6:
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        dden = k4 + r2 * (2.0 * k5 + 3.0 * r2 * k6)
+        dradial = (dradial * den - radial * dden) / (den * den)
+        radial = radial / den
+    two_dradial = 2.0 * dradial
+    xy2 = 2.0 * x * y
+    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    j00 = radial + two_dradial * x * x + 2.0 * (p1 * y + 3.0 * p2 * x)
+    j01 = two_dradial * x * y + 2.0 * (p1 * x + p2 * y)
+    j11 = radial + two_dradial * y * y + 2.0 * (3.0 * p1 * y + p2 * x)
+    j10 = j01
+    s1, s2, s3, s4 = d[8:12]
+    if s1 or s2 or s3 or s4:
+        ds_x = 2.0 * (s1 + 2.0 * s2 * r2)  # d(s1 r2 + s2 r4)/d r2, times d r2/d x / x
+        ds_y = 2.0 * (s3 + 2.0 * s4 * r2)
+        xd = xd + r2 * (s1 + s2 * r2)
+        yd = yd + r2 * (s3 + s4 * r2)
+        j00 = j00 + ds_x * x
+        j01 = j01 + ds_x * y
+        j10 = j10 + ds_y * x
+        j11 = j11 + ds_y * y
+    return xd, yd, j00, j01, j10, j11, r2, den
+
+
 def distort_with_jacobians(xy: np.ndarray, d: np.ndarray):
     """Distortion and its analytic derivatives.
 
@@ -121,27 +168,12 @@ def distort_with_jacobians(xy: np.ndarray, d: np.ndarray):
         ``d xy_d / d coefficients`` in the full order.
     """
     x, y = xy[:, 0], xy[:, 1]
-    p1, p2 = d[2], d[3]
-    s1, s2, s3, s4 = d[8:12]
-    r2 = x * x + y * y
+    xd, yd, j00, j01, j10, j11, r2, den = _distort_and_jacobian_xy(x, y, d)
+    xy_d = np.stack([xd, yd], axis=1)
+    J_xy = np.stack([np.stack([j00, j01], axis=1), np.stack([j10, j11], axis=1)], axis=1)
     r4 = r2 * r2
     r6 = r4 * r2
-    num, den, dnum, dden = _radial_terms(r2, d)
-    radial = num / den
-    dradial = (dnum * den - num * dden) / (den * den)
-    ds_x = s1 + 2.0 * s2 * r2  # d(s1 r2 + s2 r4)/d r2
-    ds_y = s3 + 2.0 * s4 * r2
-
-    xy_d = np.empty_like(xy)
-    xy_d[:, 0] = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + r2 * (s1 + s2 * r2)
-    xy_d[:, 1] = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y + r2 * (s3 + s4 * r2)
-
-    J_xy = np.empty(xy.shape[:1] + (2, 2))
-    J_xy[:, 0, 0] = radial + 2.0 * x * (x * dradial + ds_x) + 2.0 * p1 * y + 6.0 * p2 * x
-    J_xy[:, 0, 1] = 2.0 * y * (x * dradial + ds_x) + 2.0 * p1 * x + 2.0 * p2 * y
-    J_xy[:, 1, 0] = 2.0 * x * (y * dradial + ds_y) + 2.0 * p1 * x + 2.0 * p2 * y
-    J_xy[:, 1, 1] = radial + 2.0 * y * (y * dradial + ds_y) + 6.0 * p1 * y + 2.0 * p2 * x
-
+    radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / den
     J_d = np.zeros(xy.shape[:1] + (2, N_FULL))
     for col, power in ((0, r2), (1, r4), (4, r6)):  # k1, k2, k3 act on the numerator
         J_d[:, 0, col] = x * power / den
@@ -156,15 +188,12 @@ def distort_with_jacobians(xy: np.ndarray, d: np.ndarray):
     return xy_d, J_xy, J_d
 
 
-def _det2(J: np.ndarray) -> np.ndarray:
-    return J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-
-
 def undistort(xy_d: np.ndarray, d: np.ndarray):
-    """Invert the distortion by a damped Newton solve, vectorised over points.
+    """Invert the distortion by Newton's method, vectorised over points.
 
-    The solve starts at the distorted coordinates, takes Newton steps with the analytic 2x2
-    Jacobian and halves a step whenever it would increase the residual. A point counts as
+    The solve starts at the distorted coordinates and takes Newton steps with the analytic 2x2
+    Jacobian; points that have not converged after :data:`UNDISTORT_FAST_ITER` plain steps are
+    restarted with capped steps that are halved whenever they would increase the residual. A point counts as
     converged when the residual falls below :data:`UNDISTORT_TOL` *and* the distortion map is
     one-to-one between the optical axis and the solution (positive Jacobian determinant at
     :data:`FOLD_CHECK_SAMPLES` points along that segment). Beyond the fold of a strongly
@@ -188,16 +217,48 @@ def undistort(xy_d: np.ndarray, d: np.ndarray):
     n = xy_d.shape[0]
     finite = np.all(np.isfinite(xy_d), axis=1)
     xy = np.where(finite[:, None], xy_d, 0.0)
-    res_norm = np.full(n, np.inf)
-    res_norm[finite] = _residual_norm(xy[finite], xy_d[finite], d)
-    stalled = ~finite
+    # Start from one fixed-point step of the radial part: saves a Newton iteration.
+    r2 = np.einsum("ij,ij->i", xy, xy)
+    start = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
+    xy /= np.where(start > 0.1, start, 1.0)[:, None]
+    converged = np.zeros(n, bool)
+    # Fast path: plain Newton on every point, evaluating the distortion and its Jacobian once per
+    # iteration; nearly all points converge here in a few steps.
+    active = np.flatnonzero(finite)
+    for _ in range(UNDISTORT_FAST_ITER):
+        if active.size == 0:
+            break
+        xd, yd, j00, j01, j10, j11, _, _ = _distort_and_jacobian_xy(xy[active, 0], xy[active, 1], d)
+        r0, r1 = xd - xy_d[active, 0], yd - xy_d[active, 1]
+        done = r0 * r0 + r1 * r1 <= UNDISTORT_TOL**2
+        if done.any():
+            converged[active[done]] = True
+            todo = ~done
+            active = active[todo]
+            j00, j01, j10, j11, r0, r1 = (a[todo] for a in (j00, j01, j10, j11, r0, r1))
+        xy[active] -= _solve2(j00, j01, j10, j11, r0, r1)
+    # Robust path for the rest (strong distortion, near a fold): restart from the distorted
+    # coordinates with capped, backtracking Newton steps.
+    if active.size:
+        xy[active] = xy_d[active]
+        converged[active] = _undistort_backtracking(xy, xy_d, d, active)
+    converged &= one_to_one_to_axis(xy, d, converged)
+    xy[~converged] = np.nan
+    return xy, converged
+
+
+def _undistort_backtracking(xy: np.ndarray, xy_d: np.ndarray, d: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Damped Newton on the points ``active`` of ``xy`` (updated in place); returns their flags."""
+    res_norm = np.full(xy.shape[0], np.inf)
+    res_norm[active] = _residual_norm(xy[active], xy_d[active], d)
+    stalled = np.zeros(xy.shape[0], bool)
     for _ in range(UNDISTORT_MAX_ITER):
-        idx = np.flatnonzero((res_norm > UNDISTORT_TOL) & ~stalled)
+        idx = active[(res_norm[active] > UNDISTORT_TOL) & ~stalled[active]]
         if idx.size == 0:
             break
         cur = xy[idx]
-        xy_now, J, _ = distort_with_jacobians(cur, d)
-        step = _solve2(J, xy_now - xy_d[idx])
+        xd, yd, j00, j01, j10, j11, _, _ = _distort_and_jacobian_xy(cur[:, 0], cur[:, 1], d)
+        step = _solve2(j00, j01, j10, j11, xd - xy_d[idx, 0], yd - xy_d[idx, 1])
         # Cap a step at the current radius plus one: near a fold a Newton step can jump far off.
         limit = 1.0 + np.hypot(cur[:, 0], cur[:, 1])
         step *= np.minimum(1.0, limit / np.maximum(np.hypot(step[:, 0], step[:, 1]), 1e-300))[:, None]
@@ -211,10 +272,7 @@ def undistort(xy_d: np.ndarray, d: np.ndarray):
             if idx.size == 0:
                 break
         stalled[idx] = True
-    converged = (res_norm <= UNDISTORT_TOL) & finite
-    converged &= one_to_one_to_axis(xy, d, converged)
-    xy[~converged] = np.nan
-    return xy, converged
+    return res_norm[active] <= UNDISTORT_TOL
 
 
 def _residual_norm(xy: np.ndarray, xy_d: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -222,18 +280,18 @@ def _residual_norm(xy: np.ndarray, xy_d: np.ndarray, d: np.ndarray) -> np.ndarra
     return np.hypot(res[:, 0], res[:, 1])
 
 
-def _solve2(J: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve the 2x2 systems ``J @ s = r`` row by row (Cramer's rule), shapes (N,2,2), (N,2)."""
-    det = _det2(J)
+def _solve2(j00, j01, j10, j11, r0, r1) -> np.ndarray:
+    """Solve the 2x2 systems ``J @ s = r`` element-wise (Cramer's rule); returns (N, 2)."""
+    det = j00 * j11 - j01 * j10
     det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-    s = np.empty_like(r)
-    s[:, 0] = (J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / det
-    s[:, 1] = (J[:, 0, 0] * r[:, 1] - J[:, 1, 0] * r[:, 0]) / det
-    return s
+    return np.stack([(j11 * r0 - j01 * r1) / det, (j00 * r1 - j10 * r0) / det], axis=1)
 
 
 def one_to_one_to_axis(xy: np.ndarray, d: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Whether the distortion Jacobian stays positive on the segment from the axis to each point.
+
+    Points inside the lens's one-to-one radius (:func:`one_to_one_radius`) pass without work;
+    the others are checked at :data:`FOLD_CHECK_SAMPLES` points along their segment.
 
     Parameters
     ----------
@@ -248,13 +306,44 @@ def one_to_one_to_axis(xy: np.ndarray, d: np.ndarray, mask: np.ndarray) -> np.nd
     -------
     ndarray of shape (N,), bool
     """
-    ok = np.zeros(xy.shape[0], bool)
+    ok = mask.copy()
+    r_safe = one_to_one_radius(tuple(float(c) for c in d))
     idx = np.flatnonzero(mask)
+    idx = idx[np.hypot(xy[idx, 0], xy[idx, 1]) >= r_safe]
     if idx.size == 0:
         return ok
     fractions = np.linspace(1.0 / FOLD_CHECK_SAMPLES, 1.0, FOLD_CHECK_SAMPLES)
-    samples = (fractions[:, None, None] * xy[idx][None, :, :]).reshape(-1, 2)
-    _, J, _ = distort_with_jacobians(samples, d)
-    positive = (_det2(J) > 0.0).reshape(FOLD_CHECK_SAMPLES, idx.size).all(axis=0)
-    ok[idx] = positive
+    samples = fractions[:, None, None] * xy[idx][None, :, :]
+    _, _, j00, j01, j10, j11, _, _ = _distort_and_jacobian_xy(samples[..., 0], samples[..., 1], d)
+    ok[idx] = ((j00 * j11 - j01 * j10) > 0.0).all(axis=0)
     return ok
+
+
+#: Polar grid on which :func:`one_to_one_radius` searches for the nearest fold.
+_FOLD_GRID_ANGLES = 360
+_FOLD_GRID_RADII = np.linspace(0.0, 4.0, 1001)[1:]
+#: Fraction of the nearest fold radius found on the grid that is trusted without a check; the
+#: Jacobian determinant is smooth, so 2 % covers what falls between the grid's rays and radii.
+_FOLD_SAFETY = 0.98
+
+
+@functools.lru_cache(maxsize=64)
+def one_to_one_radius(d: tuple[float, ...]) -> float:
+    """Normalised radius within which the distortion map is one-to-one in every direction.
+
+    The smallest radius, over 360 directions and radii 0.004 apart, at which the Jacobian determinant first turns
+    non-positive (searched out to r = 4, i.e. 76° off axis), times a 2 % safety margin. Cached per
+    coefficient vector: a camera computes it once.
+    """
+    d_arr = np.asarray(d)
+    if not np.any(d_arr):
+        return np.inf
+    angles = np.linspace(0.0, 2.0 * np.pi, _FOLD_GRID_ANGLES, endpoint=False)
+    x = np.cos(angles)[:, None] * _FOLD_GRID_RADII[None, :]
+    y = np.sin(angles)[:, None] * _FOLD_GRID_RADII[None, :]
+    _, _, j00, j01, j10, j11, _, _ = _distort_and_jacobian_xy(x, y, d_arr)
+    bad = (j00 * j11 - j01 * j10) <= 0.0
+    if not bad.any():
+        return _FOLD_GRID_RADII[-1] * _FOLD_SAFETY
+    first_bad = np.where(bad.any(axis=1), bad.argmax(axis=1), len(_FOLD_GRID_RADII) - 1)
+    return float(_FOLD_GRID_RADII[first_bad].min() * _FOLD_SAFETY)

@@ -25,7 +25,7 @@ def read_toml(path: str | Path) -> dict:
 
 
 def check_keys(table: Mapping, allowed: Iterable[str], required: Iterable[str], path: Path, where: str) -> None:
-    """Raise :class:`FileFormatError` for a missing required key or an unknown key ("did you mean").
+    """Raise :class:`FileFormatError` for an unknown key ("did you mean") or a missing required key.
 
     Parameters
     ----------
@@ -39,11 +39,12 @@ def check_keys(table: Mapping, allowed: Iterable[str], required: Iterable[str], 
         The table's place in the file, e.g. ``"[[cameras]] #2"``.
     """
     allowed = list(allowed)
-    for key in required:
-        if key not in table:
-            raise FileFormatError(path, f"{where}: missing field {key!r}")
+    # Unknown keys first: a misspelt key is the likely cause of a "missing" one.
     for key in table:
         if key not in allowed:
             close = difflib.get_close_matches(key, allowed, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else f"; allowed: {sorted(allowed)}"
             raise FileFormatError(path, f"{where}: unknown field {key!r}{hint}")
+    for key in required:
+        if key not in table:
+            raise FileFormatError(path, f"{where}: missing field {key!r}")
