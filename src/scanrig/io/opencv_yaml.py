@@ -24,6 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.camera import Camera
@@ -64,6 +65,10 @@ def export_opencv_yaml(rig: Rig, path: str | Path) -> None:
 def import_opencv_yaml(path: str | Path, name: str = "cam0") -> Rig:
     """Read a rig from OpenCV FileStorage YAML (see the module docstring for the layouts).
 
+    Parsed in Python (PyYAML with a constructor for ``!!opencv-matrix``), not by
+    ``cv2.FileStorage``: OpenCV's parser aborts the whole process on some malformed files, which no
+    caller could catch.
+
     Parameters
     ----------
     path : str or Path
@@ -75,46 +80,89 @@ def import_opencv_yaml(path: str | Path, name: str = "cam0") -> Rig:
     FileFormatError
         Naming the file and the missing or malformed node.
     """
-    import cv2
-
     path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "file not found")
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise FileFormatError(path, f"not readable as OpenCV FileStorage: {exc.err}") from None
-    try:
-        if not fs.getNode("camera_count").empty():
-            count = int(fs.getNode("camera_count").real())
-            cams = [_read_camera(fs.getNode(f"camera_{i}"), f"camera_{i}", None, path) for i in range(count)]
-        elif not fs.getNode("camera_matrix").empty():
-            cams = [_read_camera(fs.root(), "top level", name, path)]
-        else:
-            raise FileFormatError(path, "expected a 'camera_count' node (scanrig layout) or 'camera_matrix' (OpenCV calibration layout)")
-    finally:
-        fs.release()
+    doc = _load_yaml(path)
+    if "camera_count" in doc:
+        count = doc["camera_count"]
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= 1000:
+            raise FileFormatError(path, f"camera_count must be a whole number from 1 to 1000, got {count!r}")
+        cams = [_read_camera(doc.get(f"camera_{i}"), f"camera_{i}", None, path) for i in range(count)]
+    elif "camera_matrix" in doc:
+        cams = [_read_camera(doc, "top level", name, path)]
+    else:
+        raise FileFormatError(path, "expected a 'camera_count' node (scanrig layout) or 'camera_matrix' (OpenCV calibration layout)")
     try:
         return Rig(cams)
     except InputError as exc:
         raise FileFormatError(path, str(exc)) from None
 
 
-def _read_camera(node, where: str, name: str | None, path: Path) -> Camera:
-    def need(key):
-        child = node.getNode(key)
-        if child.empty():
-            raise FileFormatError(path, f"{where}: missing node {key!r}")
-        return child
+class _OpenCVLoader(yaml.SafeLoader):
+    """PyYAML's safe loader plus OpenCV's ``!!opencv-matrix`` tag."""
 
-    K = need("camera_matrix").mat()
-    dist_node = node.getNode("distortion_coefficients")
-    dist = np.zeros(0) if dist_node.empty() or dist_node.mat() is None else dist_node.mat().ravel()
-    R = node.getNode("R_cam_from_world").mat() if not node.getNode("R_cam_from_world").empty() else np.eye(3)
-    t = node.getNode("t_cam_from_world").mat() if not node.getNode("t_cam_from_world").empty() else np.zeros(3)
-    cam_name = name if name is not None else need("name").string()
-    width, height = int(need("image_width").real()), int(need("image_height").real())
+
+def _construct_matrix(loader, node):
+    fields = loader.construct_mapping(node, deep=True)
+    rows, cols, data = fields.get("rows"), fields.get("cols"), fields.get("data")
+    if not isinstance(rows, int) or not isinstance(cols, int) or not isinstance(data, list):
+        raise yaml.constructor.ConstructorError(None, None, "opencv-matrix needs integer rows, cols and a data list", node.start_mark)
     try:
-        return Camera.from_opencv(cam_name, K, dist, R, np.ravel(t), width, height)
+        values = np.array([float(v) for v in data], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise yaml.constructor.ConstructorError(None, None, "opencv-matrix data must be numbers", node.start_mark) from None
+    if values.size != rows * cols:
+        raise yaml.constructor.ConstructorError(None, None, f"opencv-matrix has {values.size} values for {rows}x{cols}", node.start_mark)
+    return values.reshape(rows, cols)
+
+
+_OpenCVLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", _construct_matrix)
+
+
+def _load_yaml(path: Path) -> dict:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(path, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FileFormatError(path, f"not readable as text: {exc}") from None
+    if text.startswith("%YAML:"):  # OpenCV writes a YAML 1.0 directive PyYAML does not know
+        text = text.split("\n", 1)[1] if "\n" in text else ""
+    try:
+        doc = yaml.load(text, Loader=_OpenCVLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise FileFormatError(path, f"not valid OpenCV YAML: {exc}") from None
+    if not isinstance(doc, dict):
+        raise FileFormatError(path, "expected a map of named nodes at the top level")
+    return doc
+
+
+def _read_camera(node, where: str, name: str | None, path: Path) -> Camera:
+    if not isinstance(node, dict):
+        raise FileFormatError(path, f"{where}: missing or not a map")
+
+    def need(key):
+        if key not in node:
+            raise FileFormatError(path, f"{where}: missing node {key!r}")
+        return node[key]
+
+    def matrix(key, default):
+        value = node.get(key, default)
+        if not isinstance(value, np.ndarray):
+            raise FileFormatError(path, f"{where}: {key} must be an !!opencv-matrix")
+        return value
+
+    K = matrix("camera_matrix", None)
+    dist = matrix("distortion_coefficients", np.zeros((1, 0))).ravel()
+    R = matrix("R_cam_from_world", np.eye(3))
+    t = matrix("t_cam_from_world", np.zeros((3, 1))).ravel()
+    cam_name = name if name is not None else need("name")
+    sizes = []
+    for key in ("image_width", "image_height"):
+        value = need(key)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise FileFormatError(path, f"{where}: {key} must be a whole number of pixels, got {value!r}")
+        sizes.append(value)
+    try:
+        return Camera.from_opencv(str(cam_name), K, dist, R, t, *sizes)
     except InputError as exc:
         raise FileFormatError(path, f"{where}: {exc}") from None
