@@ -41,6 +41,10 @@ class FileFormatError(InputError):
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
+    def __reduce__(self):
+        # Rebuild from (path, reason), so the error survives pickling across worker processes.
+        return (type(self), (self.path, self.reason))
+
 
 class EstimationError(ScanrigError, RuntimeError):
     """A whole estimate failed (e.g. a calibration that cannot converge); the message says what to do."""

@@ -68,3 +68,10 @@ def test_atomic_write_keeps_previous_file_on_crash(tmp_path):
             raise RuntimeError("crash mid-write")
     assert path.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_file_format_error_survives_pickling():
+    import pickle
+
+    err = pickle.loads(pickle.dumps(FileFormatError("/x/y.png", "cannot decode image")))
+    assert isinstance(err, FileFormatError) and str(err) == "/x/y.png: cannot decode image"

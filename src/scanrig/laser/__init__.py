@@ -1,0 +1,18 @@
+"""Laser trace detection: every spot or stripe candidate, its sub-pixel centre and that centre's sigma.
+
+Modules, bottom to top:
+
+- :mod:`~scanrig.laser.image`: laser-colour channel, dark-frame subtraction, region of interest,
+  saturation mask, background and noise estimates.
+- :mod:`~scanrig.laser.fit`: pixel-integrated Gaussian models and a Levenberg–Marquardt fit
+  vectorised over all candidates at once.
+- :mod:`~scanrig.laser.crb`: the Cramér–Rao bound of the centre, for tests and benchmarks.
+- :mod:`~scanrig.laser.peaks`: candidate finding (strided pre-scan, local maxima, suppression).
+- :mod:`~scanrig.laser.spots`, :mod:`~scanrig.laser.stripes`: ``detect_spots`` and
+  ``detect_stripe``, one table row per candidate.
+- :mod:`~scanrig.laser.traces`: the ``traces.parquet`` schema, reading and atomic writing.
+- :mod:`~scanrig.laser.session_detect`: a whole session, in parallel over frames.
+- :mod:`~scanrig.laser.overlay`: overlay images of the detections.
+
+The method and its uncertainty model are described in ``docs/detection.md``.
+"""

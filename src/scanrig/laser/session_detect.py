@@ -1,0 +1,228 @@
+"""Detection over a whole session: every scan frame of every camera, in parallel, resumable.
+
+Frames are independent, so they are split into chunks and handed to a
+:class:`concurrent.futures.ProcessPoolExecutor` (workers read their own images: only file names
+and result tables cross process boundaries). ``traces.parquet`` is rewritten atomically every
+``checkpoint_s`` seconds and at the end, with the list of processed ``(camera, frame)`` pairs in
+its metadata; ``resume=True`` skips those, including frames that had no candidate.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.io.session import Session, natural_key, read_image
+from scanrig.laser.image import LASER_COLORS
+from scanrig.laser.traces import empty_table, read_traces, write_traces
+
+MODES = ("spot", "stripe")
+#: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
+_CHUNK_FRAMES = 8
+
+
+@dataclass(frozen=True)
+class DetectOptions:
+    """What to detect and how (recorded in ``traces.parquet``; resuming requires the same).
+
+    Attributes
+    ----------
+    mode : {"spot", "stripe"}
+    color : {"grey", "red", "green", "blue"}
+    roi : (u0, v0, u1, v1) or None
+        Region of interest applied to every camera, pixels.
+    k_detect : float
+        Detection threshold in noise σ of the 3 × 3 box sum.
+    """
+
+    mode: str = "spot"
+    color: str = "grey"
+    roi: tuple[int, int, int, int] | None = None
+    k_detect: float = 6.0
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.color not in LASER_COLORS:
+            raise InputError(f"color must be one of {LASER_COLORS}, got {self.color!r}")
+
+    def as_dict(self) -> dict:
+        return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),
+                "k_detect": self.k_detect}
+
+
+def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
+                         roi=None, k_detect: float = 6.0) -> DetectOptions:
+    """Options with ``mode`` and ``color`` defaulting to ``laser_mode`` / ``laser_color`` of session.toml."""
+    settings = session.settings()
+    return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
+                         None if roi is None else tuple(int(x) for x in roi), k_detect)
+
+
+@dataclass
+class _Job:
+    camera: str
+    frames: list[tuple[str, str]]  # (stem, path)
+    dark: str | None
+    shape: tuple[int, ...]
+    dtype: str
+    reference: str  # the file that fixed shape and dtype
+    options: DetectOptions
+
+
+def detect_session(
+    root: str | Path,
+    options: DetectOptions | None = None,
+    workers: int = 1,
+    resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    checkpoint_s: float = 30.0,
+) -> pa.Table:
+    """Detect laser traces in every scan frame of a session and write ``traces.parquet``.
+
+    Parameters
+    ----------
+    root : path
+        Session folder (DESIGN.md §4): images in ``scan/<camera>/<frame>.<ext>``, optional
+        ``scan/<camera>/dark.<ext>``.
+    options : DetectOptions, optional
+        Default: :func:`options_from_session`.
+    workers : int
+        Processes; 1 runs in this process.
+    resume : bool
+        Keep an existing ``traces.parquet`` made with the same options and skip its frames.
+    progress : callable, optional
+        ``progress(done, total)`` after each chunk of frames.
+    checkpoint_s : float
+        Seconds between intermediate writes of ``traces.parquet``.
+
+    Returns
+    -------
+    pyarrow.Table
+        All rows written, ordered by camera (session order), frame (natural order), line, rank.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file: unreadable image, wrong bit depth, a frame whose size or bit depth differs
+        from the camera's other frames or its dark frame, a traces file made with other options.
+    """
+    session = Session(root)
+    options = options or options_from_session(session)
+    if workers < 1:
+        raise InputError(f"workers must be at least 1, got {workers}")
+    cameras = session.camera_names("scan")
+    tables, done = [empty_table()], set()
+    if resume and session.traces_path.exists():
+        table, meta = read_traces(session.traces_path)
+        if meta.get("options") != options.as_dict():
+            raise FileFormatError(session.traces_path, f"was made with options {meta.get('options')}, "
+                                  f"not {options.as_dict()}; run without --resume to start again")
+        tables.append(table)
+        done = {tuple(x) for x in meta.get("frames_done", [])}
+    jobs = _jobs(session, cameras, options, done)
+    total = sum(len(j.frames) for j in jobs)
+    finished = sorted(done)
+    last_write = time.monotonic()
+
+    def collect(job: _Job, result):
+        nonlocal last_write
+        if isinstance(result, tuple):  # (path, reason) of a bad input file
+            raise FileFormatError(*result)
+        tables.append(result)
+        finished.extend((job.camera, stem) for stem, _ in job.frames)
+        if progress:
+            progress(len(finished) - len(done), total)
+        if time.monotonic() - last_write > checkpoint_s:
+            _write(session, cameras, tables, finished, options)
+            last_write = time.monotonic()
+
+    if workers == 1 or len(jobs) <= 1:
+        for job in jobs:
+            collect(job, _run_job(job))
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(_run_job, job): job for job in jobs}
+            try:
+                for fut in as_completed(futures):
+                    collect(futures[fut], fut.result())
+            except BaseException:
+                for fut in futures:
+                    fut.cancel()
+                raise
+    return _write(session, cameras, tables, finished, options)
+
+
+def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: set) -> list[_Job]:
+    """Chunks of frames still to do, with each camera's reference shape and dark frame."""
+    jobs = []
+    for cam in cameras:
+        paths = session.image_paths("scan", cam)
+        dark = session.dark_path(cam)
+        todo = [(stem, str(p)) for stem, p in paths.items() if (cam, stem) not in done]
+        if not todo:
+            continue
+        reference = dark or paths[next(iter(paths))]
+        img = read_image(reference)
+        for k in range(0, len(todo), _CHUNK_FRAMES):
+            jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], None if dark is None else str(dark), img.shape,
+                             str(img.dtype), str(reference), options))
+    return jobs
+
+
+def _run_job(job: _Job):
+    """Detect in a chunk of frames (runs in a worker). Returns a table, or (path, reason) on bad input."""
+    from scanrig.laser.spots import detect_spots
+    from scanrig.laser.stripes import detect_stripe
+
+    detect = detect_spots if job.options.mode == "spot" else detect_stripe
+    path = job.dark
+    try:
+        dark = None if job.dark is None else read_image(job.dark)
+        out = []
+        for stem, path in job.frames:
+            img = read_image(path)
+            if img.shape != job.shape or str(img.dtype) != job.dtype:
+                return (path, f"frame is {_describe(img.shape, img.dtype)} but {Path(job.reference).name} of "
+                              f"camera {job.camera!r} is {_describe(job.shape, job.dtype)}")
+            out.append(detect(img, color=job.options.color, dark=dark, roi=job.options.roi,
+                              k_detect=job.options.k_detect, camera=job.camera, frame=stem))
+    except FileFormatError as exc:
+        return (str(exc.path), exc.reason)
+    except InputError as exc:
+        return (path, str(exc))
+    return pa.concat_tables(out) if out else empty_table()
+
+
+def _describe(shape, dtype) -> str:
+    h, w = shape[:2]
+    bits = 8 if str(dtype) == "uint8" else 16
+    return f"{w}x{h} {bits}-bit {'colour' if len(shape) == 3 else 'grey'}"
+
+
+def _write(session: Session, cameras: list[str], tables: list[pa.Table], finished, options) -> pa.Table:
+    """Concatenate, order canonically and write ``traces.parquet`` atomically."""
+    table = pa.concat_tables(tables)
+    if len(table):
+        cam_rank = {c: i for i, c in enumerate(cameras)}
+        frames = table.column("frame").to_pylist()
+        stems = sorted(set(frames), key=natural_key)
+        frame_rank = {s: i for i, s in enumerate(stems)}
+        order = np.lexsort((table.column("rank").to_numpy(), table.column("line").to_numpy(),
+                            np.array([frame_rank[f] for f in frames]),
+                            np.array([cam_rank.get(c, len(cam_rank)) for c in table.column("camera").to_pylist()])))
+        table = table.take(order)
+    from scanrig import __version__
+
+    meta = {"format_version": 1, "created_by": f"scanrig {__version__}", "options": options.as_dict(),
+            "frames_done": [list(x) for x in sorted(set(map(tuple, finished)))]}
+    write_traces(session.traces_path, table, meta)
+    return table

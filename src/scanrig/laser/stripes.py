@@ -1,0 +1,266 @@
+"""Laser stripes: on every scan line across the stripe, every peak above the noise, fitted in 1-D.
+
+The scan lines are the image rows where the stripe runs mostly vertically and the columns where it
+runs mostly horizontally, decided per 4 × 4 pixel block from the pre-scan's structure, so a stripe
+curving over a surface is crossed at a steep angle everywhere (or forced by ``direction``). On
+each line every local maximum that passes the detection test is a candidate, not only the
+brightest, so a secondary reflection never hides the true stripe; each is fitted with a
+pixel-integrated Gaussian along the line, vectorised over all (line, peak) pairs of the frame.
+
+The centre is the stripe's crossing with the scan line: for rows ``v`` is exactly the row index
+and only ``u`` is uncertain (``cov_vv = cov_uv = 0``), and vice versa for columns. On a tilted
+stripe the profile along the line is wider by 1/cos(tilt); ``width_px`` is that width along the
+line.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scanrig.errors import InputError
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, model_1d, parameter_covariance
+from scanrig.laser.image import prepare_image
+from scanrig.laser.peaks import BLOCK, find_candidates, prescan, scan_direction_map, suppress_on_lines
+from scanrig.laser.traces import empty_table, make_table
+
+DIRECTIONS = ("auto", "rows", "columns")
+#: A fitted centre further than this from its seed pixel has converged onto another peak.
+MAX_SHIFT_PX = 2.0
+
+
+def detect_stripe(
+    image: np.ndarray,
+    *,
+    color: str = "grey",
+    dark: np.ndarray | None = None,
+    roi: tuple[int, int, int, int] | None = None,
+    direction: str = "auto",
+    noise_sigma: float | None = None,
+    saturation_level: float | None = None,
+    k_detect: float = 6.0,
+    min_separation_px: float = 3.0,
+    max_width_px: float = 3.0,
+    max_per_line: int = 8,
+    camera: str = "",
+    frame: str = "",
+):
+    """All laser-stripe candidates of one frame: every peak on every scan line.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) uint8 or uint16 array
+        The frame (RGB for colour), DN.
+    color : {"grey", "red", "green", "blue"}
+        Laser colour (see :mod:`scanrig.laser.image`).
+    dark : array like ``image``, optional
+        Laser-off frame to subtract.
+    roi : (u0, v0, u1, v1) ints, optional
+        Region of interest, pixels, end-exclusive; output coordinates stay full-frame.
+    direction : {"auto", "rows", "columns"}
+        Scan lines: rows (for a near-vertical stripe), columns, or decided locally from the frame.
+    noise_sigma : float, optional
+        Known noise σ of the signal, DN; estimated robustly from the frame when omitted.
+    saturation_level : float, optional
+        DN at which pixels clip (default: dtype maximum). Clipped pixels are left out of the fit.
+    k_detect : float
+        Detection threshold: the 3 × 3 box sum above background, in units of its noise.
+    min_separation_px : float
+        Peaks on one line closer than this are merged (the stronger stays).
+    max_width_px : float
+        Largest Gaussian σ fitted, along the line; the window is ±ceil(3 · max_width_px) pixels.
+    max_per_line : int
+        At most this many peaks per line (the strongest) are fitted.
+    camera, frame : str
+        Written into every row.
+
+    Returns
+    -------
+    pyarrow.Table
+        One row per (line, peak) with the columns of ``traces.parquet`` (``kind = "stripe"``;
+        ``line`` = full-frame row index where rows were scanned (then ``cov_vv = 0``) or column index
+        where columns were (then ``cov_uu = 0``); rank 0 = brightest peak of its line). Empty for a
+        dark frame.
+
+    Raises
+    ------
+    ShapeError, InputError
+        On an image of the wrong type or shape, or invalid options.
+
+    Examples
+    --------
+    >>> import numpy as np, scanrig
+    >>> img = np.full((64, 64), 10, np.uint8); img[:, 20:23] = 200
+    >>> t = scanrig.detect_stripe(img, noise_sigma=2.0)
+    >>> len(t), round(t["u"][0].as_py(), 2)
+    (64, 21.0)
+    """
+    if direction not in DIRECTIONS:
+        raise InputError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
+    li = prepare_image(image, color, dark, roi, saturation_level, noise_sigma)
+    excess = prescan(li)
+    if direction == "auto":
+        by_rows = scan_direction_map(excess)
+    else:
+        by_rows = np.full(excess.shape, direction == "rows")
+    parts = [_detect_along(li, along, blocks, np.where(blocks, excess, -1.0), k_detect, min_separation_px,
+                           max_width_px, max_per_line)
+             for along, blocks in (("rows", by_rows), ("columns", ~by_rows)) if blocks.any()]
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        return empty_table()
+    return make_table("stripe", {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, camera, frame)
+
+
+def _detect_along(li, along, blocks, excess, k_detect, min_separation_px, max_width_px,
+                  max_per_line) -> dict[str, np.ndarray] | None:
+    """Candidates scanned along rows or columns, kept where ``blocks`` (4 × 4 pixel blocks) says so;
+    None when there are none."""
+    cand = find_candidates(li, along, excess, k_detect=k_detect)
+    cand = cand.take(blocks[cand.v // BLOCK, cand.u // BLOCK])
+    rows = along == "rows"
+    line, pos = (cand.v, cand.u) if rows else (cand.u, cand.v)
+    order = np.lexsort((pos, line))
+    line, pos, score = line[order], pos[order], cand.score[order]
+    keep = suppress_on_lines(line, pos, score, min_separation_px)
+    keep = _strongest_per_line(line, score, keep, max_per_line)
+    line, pos = line[keep], pos[keep]
+    if line.size == 0:
+        return None
+    signal = li.signal if rows else li.signal.T
+    saturated = None if li.saturated is None else (li.saturated if rows else li.saturated.T)
+    uv = (pos, line) if rows else (line, pos)
+    cols = _fit_lines(signal, saturated, line, pos, li.background_at(*uv), li.noise_at(*uv).astype(np.float64),
+                      max_width_px)
+    centre = cols.pop("centre")
+    var = cols.pop("var")
+    zero = np.zeros_like(var)
+    if rows:
+        cols.update(u=centre + li.origin[0], v=cols["line"] + float(li.origin[1]), cov_uu=var, cov_vv=zero)
+        cols["line"] = cols["line"] + li.origin[1]
+    else:
+        cols.update(u=cols["line"] + float(li.origin[0]), v=centre + li.origin[1], cov_uu=zero, cov_vv=var)
+        cols["line"] = cols["line"] + li.origin[0]
+    cols["cov_uv"] = zero
+    cols["rank"] = _rank_on_lines(cols["line"], cols["peak"])
+    cols["line"] = cols["line"].astype(np.int32)
+    return cols
+
+
+def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px) -> dict[str, np.ndarray]:
+    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped."""
+    half = int(np.ceil(3.0 * max_width_px))
+    offs = np.arange(-half, half + 1)
+    n_pos = signal.shape[1]
+    if saturated is not None:
+        pos = _centre_of_saturated_run(saturated, line, pos, offs)
+    idx = pos[:, None] + offs
+    inside = (idx >= 0) & (idx < n_pos)
+    idx = np.clip(idx, 0, n_pos - 1)
+    y = signal[line[:, None], idx].astype(np.float64)
+    mask = inside & _nearest_on_line(line, pos, offs)
+    sat = np.zeros(y.shape, bool) if saturated is None else saturated[line[:, None], idx]
+    mask &= ~sat
+    p0 = _start(y, background.astype(np.float64), half, max_width_px, sat)
+    lower = np.array([MIN_PEAK_DN, -half, MIN_WIDTH_PX, -np.inf])
+    upper = np.array([np.inf, half, max_width_px, np.inf])
+    x = offs.astype(float)
+    res = fit_batch(lambda p: model_1d(x, p), y, mask, p0, lower, upper)
+    p = res.params
+    var = parameter_covariance(res, noise)[:, 1, 1]
+    ok = np.isfinite(var) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX) & (res.dof > 0)
+    out = {
+        "line": line, "centre": pos + p[:, 1], "var": var, "sigma_px": np.sqrt(np.abs(var)),
+        "peak": p[:, 0], "width_px": p[:, 2], "snr": p[:, 0] / noise,
+        "saturated": sat[:, half - 1 : half + 2].any(axis=1),
+    }
+    return {k: a[ok] for k, a in out.items()}
+
+
+def _centre_of_saturated_run(saturated, line, pos, offs) -> np.ndarray:
+    """Move seeds that sit on a clipped plateau (found at its end) to the plateau's middle."""
+    idx = np.clip(pos[:, None] + offs, 0, saturated.shape[1] - 1)
+    sat = saturated[line[:, None], idx]
+    half = offs.size // 2
+    right = np.cumprod(sat[:, half:], axis=1).sum(axis=1)
+    left = np.cumprod(sat[:, half::-1], axis=1).sum(axis=1)
+    return np.where(sat[:, half], pos + (right - left) // 2, pos)
+
+
+def _nearest_on_line(line, pos, offs) -> np.ndarray:
+    """(n, W) True where a window pixel is nearer its own peak than the neighbouring peaks on the
+    same line (candidates sorted by line, then position)."""
+    if line.size == 0:
+        return np.ones((0, offs.size), bool)
+    big = 10 * offs.size
+    same_prev = np.r_[False, line[1:] == line[:-1]]
+    same_next = np.r_[line[1:] == line[:-1], False]
+    gap_prev = np.where(same_prev, np.r_[big, pos[1:] - pos[:-1]], big)
+    gap_next = np.where(same_next, np.r_[pos[1:] - pos[:-1], big], big)
+    return (2 * offs[None, :] > -gap_prev[:, None]) & (2 * offs[None, :] < gap_next[:, None])
+
+
+#: Widths tried for the start of a fit whose core is clipped, pixels.
+_CLIPPED_START_WIDTHS = np.array([0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0])
+
+
+def _start(y, background, half, max_width_px, saturated) -> np.ndarray:
+    """Start values: peak, centroid and width from the excess area of the ±2 px core.
+
+    A clipped core has no usable peak or area; there the centre starts at the middle of the
+    clipped run and the width at the best of a few trial widths, each with peak and background
+    solved linearly from the unclipped pixels.
+    """
+    core = y[:, half - 2 : half + 3] - background[:, None]
+    excess = np.clip(core, 0.0, None)
+    peak = np.maximum(core.max(axis=1), 1e-3)
+    total = np.maximum(excess.sum(axis=1), 1e-9)
+    x0 = (excess * np.arange(-2, 3)).sum(axis=1) / total
+    width = total / (np.sqrt(2 * np.pi) * peak)
+    start = np.stack([peak, x0, np.clip(width, 0.5, max_width_px), background], axis=1)
+    clipped = saturated[:, half]
+    if clipped.any():
+        start[clipped] = _clipped_start(y[clipped], saturated[clipped], half, max_width_px)
+    return start
+
+
+def _clipped_start(y, saturated, half, max_width_px) -> np.ndarray:
+    """Start values (peak, x0, width, background) for windows whose centre pixel is clipped."""
+    right = np.cumprod(saturated[:, half:], axis=1).sum(axis=1)
+    left = np.cumprod(saturated[:, half::-1], axis=1).sum(axis=1)
+    x0 = (right - left) / 2.0
+    widths = _CLIPPED_START_WIDTHS[_CLIPPED_START_WIDTHS <= max_width_px]
+    x = np.arange(-half, half + 1, dtype=float)
+    g = np.exp(-0.5 * ((x[None, None, :] - x0[:, None, None]) / widths[None, :, None]) ** 2)  # (n, k, W)
+    w = (~saturated)[:, None, :].astype(float)
+    # weighted linear least squares of y ≈ A g + b per (candidate, width)
+    s_w, s_g, s_y = w.sum(-1), (w * g).sum(-1), (w * y[:, None, :]).sum(-1)
+    s_gg, s_gy = (w * g * g).sum(-1), (w * g * y[:, None, :]).sum(-1)
+    det = s_w * s_gg - s_g**2
+    with np.errstate(divide="ignore", invalid="ignore"):  # all pixels clipped: no solution, NaN
+        amp = (s_w * s_gy - s_g * s_y) / det
+        bg = (s_y - amp * s_g) / s_w
+        resid = (w * (y[:, None, :] - amp[..., None] * g - bg[..., None]) ** 2).sum(-1)
+    resid = np.where(np.isfinite(resid) & (amp > 0), resid, np.inf)
+    best = np.argmin(resid, axis=1)
+    pick = np.arange(y.shape[0])
+    return np.stack([np.nan_to_num(amp[pick, best], nan=1.0), x0, widths[best],
+                     np.nan_to_num(bg[pick, best])], axis=1)
+
+
+def _strongest_per_line(line, score, keep, max_per_line) -> np.ndarray:
+    """``keep`` restricted to the ``max_per_line`` highest scores of each line."""
+    idx = np.flatnonzero(keep)
+    out = keep.copy()
+    out[idx[_rank_on_lines(line[idx], score[idx]) >= max_per_line]] = False
+    return out
+
+
+def _rank_on_lines(line, peak) -> np.ndarray:
+    """0 for the brightest peak of each line, 1 for the next, ... (int32)."""
+    order = np.lexsort((-peak, line))
+    sorted_lines = line[order]
+    start = np.r_[0, np.flatnonzero(sorted_lines[1:] != sorted_lines[:-1]) + 1]
+    first = np.repeat(start, np.diff(np.r_[start, line.size]))
+    rank = np.empty(line.size, np.int32)
+    rank[order] = np.arange(line.size) - first
+    return rank

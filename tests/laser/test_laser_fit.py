@@ -1,0 +1,74 @@
+"""Pixel-integrated Gaussian model, its Jacobian, the batch fit and the Cramér–Rao bound."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from scanrig.laser.crb import crb_spot, crb_stripe, effective_noise
+from scanrig.laser.fit import fit_batch, integrated_profile, model_1d, model_2d
+
+from .synth import profiles
+
+# Central differences with step 1e-6 on O(1..100) functions: truncation ~1e-12, rounding ~1e-8.
+FD_STEP = 1e-6
+FD_TOL = 1e-6
+
+
+@settings(max_examples=50, deadline=None)
+@given(x0=st.floats(-3, 3), s=st.floats(0.3, 4.0))
+def test_integrated_profile_sums_to_gaussian_area(x0, s):
+    # the pixel integrals telescope to the whole integral √(2π)·s when the window holds the profile
+    x = np.arange(-40, 41, dtype=float)
+    g, _, _ = integrated_profile(x, np.array([[x0]]), np.array([[s]]))
+    assert g.sum() == pytest.approx(np.sqrt(2 * np.pi) * s, rel=1e-12)
+
+
+@pytest.mark.parametrize("model, p", [
+    (lambda p: model_1d(np.arange(-6.0, 7.0), p), np.array([[150.0, 0.31, 1.7, 12.0], [40.0, -0.8, 0.6, 3.0]])),
+    (lambda p: model_2d(np.arange(-5.0, 6.0), np.arange(-4.0, 5.0), p),
+     np.array([[150.0, 0.31, -0.2, 1.7, 1.1, 12.0], [40.0, -0.8, 0.45, 0.6, 2.2, 3.0]])),
+])
+def test_jacobian_matches_finite_differences(model, p):
+    _, jac = model(p)
+    for k in range(p.shape[1]):
+        dp = np.zeros_like(p)
+        dp[:, k] = FD_STEP
+        numeric = (model(p + dp)[0] - model(p - dp)[0]) / (2 * FD_STEP)
+        np.testing.assert_allclose(jac[:, :, k], numeric, atol=FD_TOL * np.abs(p[:, :1]).max())
+
+
+def test_fit_recovers_noise_free_parameters_exactly():
+    x = np.arange(-8.0, 9.0)
+    truth = np.array([[180.0, 0.37, 1.3, 10.0], [90.0, -0.45, 2.4, 3.0], [200.0, 0.0, 0.8, 0.0]])
+    y, _ = model_1d(x, truth)
+    p0 = truth * np.array([0.8, 0.0, 1.3, 1.1])
+    res = fit_batch(lambda p: model_1d(x, p), y, np.ones(y.shape, bool), p0,
+                    np.array([1e-3, -8, 0.3, -np.inf]), np.array([np.inf, 8, 4, np.inf]))
+    np.testing.assert_allclose(res.params, truth, atol=1e-6)
+
+
+def test_crb_equals_monte_carlo_spread_of_the_fit():
+    """The fit of 4000 noisy profiles scatters as the bound says (within sampling error)."""
+    rng = np.random.default_rng(201)
+    sigma, noise, n = 1.5, 2.0, 4000
+    y, true_x = profiles(rng, n, sigma, noise=noise, dtype=np.uint16)
+    half = 15
+    x = np.arange(-half, half + 1, dtype=float)
+    p0 = np.stack([np.full(n, 150.0), np.zeros(n), np.full(n, 1.0), np.full(n, 8.0)], axis=1)
+    res = fit_batch(lambda p: model_1d(x, p), y.astype(float), np.ones(y.shape, bool), p0,
+                    np.array([1e-3, -half, 0.3, -np.inf]), np.array([np.inf, half, 4, np.inf]))
+    err = res.params[:, 1] + half - true_x
+    bound = crb_stripe(180.0, sigma, true_x - half, effective_noise(noise), half_window=half)
+    rel_sampling_error = 4.0 / np.sqrt(2 * n)  # 4 standard errors of an RMS from n samples
+    assert np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(bound**2)) == pytest.approx(1.0, abs=rel_sampling_error)
+
+
+def test_position_only_bound_is_never_above_the_full_bound():
+    offsets = np.linspace(-0.5, 0.5, 11)
+    for s in (0.8, 1.5, 2.5):
+        full = crb_stripe(180.0, s, offsets, 2.0)
+        known = crb_stripe(180.0, s, offsets, 2.0, position_only=True)
+        assert np.all(known <= full * (1 + 1e-12))
+        spot_known = crb_spot(180.0, s, offsets, 0.0, 2.0, position_only=True)
+        assert np.all(spot_known <= crb_spot(180.0, s, offsets, 0.0, 2.0) * (1 + 1e-12))

@@ -1,0 +1,132 @@
+"""Whole-session detection, traces.parquet, resume, overlays and the ``scanrig detect`` verb."""
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from scanrig.cli.main import main
+from scanrig.errors import FileFormatError
+from scanrig.io.session import read_image, write_image
+from scanrig.laser.session_detect import DetectOptions, detect_session
+from scanrig.laser.traces import SCHEMA, read_traces, write_traces
+
+from .synth import spot_image
+
+N_FRAMES = 5
+CAMERAS = ("cam2", "cam10")  # natural order: cam2 before cam10
+
+
+def _true_spot(cam, k):
+    return 40.3 + 11.1 * k + 3.7 * (cam == "cam10"), 30.6 + 7.9 * k
+
+
+@pytest.fixture
+def session(tmp_path):
+    rng = np.random.default_rng(501)
+    for cam in CAMERAS:
+        folder = tmp_path / "scan" / cam
+        folder.mkdir(parents=True)
+        for k in range(N_FRAMES):
+            u, v = _true_spot(cam, k)
+            spots = [(u, v, 180.0, 1.5, 1.5)] + ([(u + 20, v + 10, 90.0, 1.5, 1.5)] if k == 2 else [])
+            img = spot_image((120, 160), spots, rng, 40.0, 2.0)
+            write_image(folder / f"f{k}.png", np.stack([img, np.full_like(img, 40), np.full_like(img, 40)], -1))
+    (tmp_path / "session.toml").write_text('laser_mode = "spot"\nlaser_color = "red"\n')
+    return tmp_path
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_session_detection_finds_every_spot_in_order(session, workers):
+    table = detect_session(session, workers=workers)
+    on_disk, meta = read_traces(session / "traces.parquet")
+    assert on_disk.equals(table) and table.schema.equals(SCHEMA)
+    assert meta["options"]["color"] == "red" and len(meta["frames_done"]) == 2 * N_FRAMES
+    assert table.column("camera").to_pylist()[0] == "cam2"
+    assert len(table) == 2 * N_FRAMES + 2  # one reflection in frame f2 of each camera
+    rank0 = table.filter(pa.compute.equal(table["rank"], 0))
+    for cam, frame, u, v in zip(*(rank0[c].to_pylist() for c in ("camera", "frame", "u", "v"))):
+        tu, tv = _true_spot(cam, int(frame[1:]))
+        assert abs(u - tu) < 0.1 and abs(v - tv) < 0.1
+
+
+def test_resume_skips_done_frames_and_refuses_other_options(session):
+    first = detect_session(session)
+    meta_only = first.filter(pa.compute.not_equal(first["frame"], "f4"))
+    done = [[c, f"f{k}"] for c in CAMERAS for k in range(N_FRAMES - 1)]
+    write_traces(session / "traces.parquet", meta_only, {"options": DetectOptions("spot", "red").as_dict(),
+                                                         "frames_done": done})
+    for cam in CAMERAS:  # a resumed run must not read the finished frames again
+        (session / "scan" / cam / "f1.png").write_bytes(b"not an image")
+    resumed = detect_session(session, resume=True)
+    assert resumed.equals(first)
+    with pytest.raises(FileFormatError, match="traces.parquet: was made with options .* run without --resume"):
+        detect_session(session, DetectOptions("stripe", "red"), resume=True)
+
+
+def test_unreadable_and_mismatched_frames_are_named(session):
+    (session / "scan" / "cam2" / "f3.png").write_bytes(b"garbage")
+    with pytest.raises(FileFormatError, match=r"f3.png: cannot decode image"):
+        detect_session(session)
+    write_image(session / "scan" / "cam2" / "f3.png", np.zeros((100, 160, 3), np.uint8))
+    message = r"f3.png: frame is 160x100 8-bit colour but f0.png of camera 'cam2' is 160x120"
+    with pytest.raises(FileFormatError, match=message):
+        detect_session(session, workers=2)
+    write_image(session / "scan" / "cam2" / "f3.png", np.zeros((120, 160, 3), np.uint16))
+    with pytest.raises(FileFormatError, match=r"f3.png: frame is 160x120 16-bit colour but .* 8-bit colour"):
+        detect_session(session)
+    (session / "scan" / "cam2" / "f3.png").write_bytes(b"")
+    with pytest.raises(FileFormatError, match=r"f3.png: image file is empty"):
+        detect_session(session)
+    (session / "scan" / "cam2" / "f3.png").unlink()
+    cv2.imwrite(str(session / "scan" / "cam2" / "f3.tif"), np.zeros((120, 160), np.float32))
+    with pytest.raises(FileFormatError, match=r"f3.tif: expected an 8- or 16-bit image, got float32"):
+        detect_session(session)
+
+
+def test_dark_frame_is_used(session):
+    cam = session / "scan" / "cam2"
+    glare = np.zeros((120, 160, 3), np.uint8)
+    glare[80:83, 120:123, 0] = 150  # a fixed red glint, present with the laser off too
+    write_image(cam / "dark.png", glare)
+    for k in range(N_FRAMES):
+        img = read_image(cam / f"f{k}.png")
+        write_image(cam / f"f{k}.png", np.clip(img.astype(int) + glare, 0, 255).astype(np.uint8))
+    table = detect_session(session)
+    assert len(table.filter(pa.compute.equal(table["camera"], "cam2"))) == N_FRAMES + 1
+
+
+def test_traces_file_validation(tmp_path):
+    path = tmp_path / "traces.parquet"
+    with pytest.raises(FileFormatError, match="traces.parquet: traces file not found"):
+        read_traces(path)
+    path.write_bytes(b"PAR1 nonsense")
+    with pytest.raises(FileFormatError, match="traces.parquet: not a readable Parquet file"):
+        read_traces(path)
+    pq.write_table(SCHEMA.empty_table().drop_columns(["sigma_px"]), path)
+    with pytest.raises(FileFormatError, match="traces.parquet: missing column 'sigma_px'"):
+        read_traces(path)
+    bad = pa.table({**{f.name: pa.array([], f.type) for f in SCHEMA}, "rank": pa.array([], pa.float64())})
+    pq.write_table(bad, path)
+    with pytest.raises(FileFormatError, match="column 'rank' must be int32, got double"):
+        read_traces(path)
+
+
+def test_cli_detect_writes_traces_and_overlay(session, capsys):
+    assert main(["detect", str(session), "--workers", "2", "--overlay", "f2"]) == 0
+    out = capsys.readouterr().out
+    assert "12 candidates in 10 camera frames (10 with candidates)" in out
+    overlay = read_image(session / "overlays" / "f2_cam10.png")
+    assert overlay.shape == (120, 160, 3)
+    u, v = _true_spot("cam10", 2)
+    assert tuple(overlay[int(round(v)), int(round(u))]) == (0, 255, 0)  # the green centre cross
+
+
+def test_cli_bad_input_exits_2_naming_the_problem(session, capsys):
+    assert main(["detect", str(session / "missing")]) == 2
+    assert "missing: session folder not found" in capsys.readouterr().err
+    assert main(["detect", str(session), "--mode", "blob"]) == 2
+    assert "mode must be one of ('spot', 'stripe'), got 'blob'" in capsys.readouterr().err
+    assert main(["detect", str(session), "--roi", "1,2,3"]) == 2
+    assert "--roi must be four integers u0,v0,u1,v1, got '1,2,3'" in capsys.readouterr().err
