@@ -150,3 +150,21 @@ def test_from_opencv_rejects_skew_and_tilt_model():
         Camera.from_opencv("c", [[900, 1, 320], [0, 900, 240], [0, 0, 1]], [], np.zeros(3), np.zeros(3), 640, 480)
     with pytest.raises(InputError, match="14-coefficient tilt model is not supported"):
         Camera.from_opencv("c", np.diag([900, 900, 1.0]), np.zeros(14), np.zeros(3), np.zeros(3), 640, 480)
+
+
+def test_point_jacobian_alone_equals_the_full_one():
+    rng = np.random.default_rng(21)
+    cam = random_camera(rng, "opencv12", k1_max=0.3)
+    p = np.vstack([points_in_view(rng, cam, 40), cam.cam_from_world.inverse().apply([[0.0, 0.0, -1.0]])])
+    q, J_point = cam.project_with_point_jacobian(p)
+    q_full, J_full, _, _ = cam.project_with_jacobians(p)
+    np.testing.assert_array_equal(q, q_full)
+    np.testing.assert_array_equal(J_point, J_full)
+    assert np.all(np.isnan(J_point[-1]))
+
+
+def test_pinhole_rays_need_no_iteration():
+    cam = Camera("c", "pinhole", [1000, 1000, 640, 512], 1280, 1024)
+    xy, ok = cam.unproject([[740.0, 612.0], [np.inf, 0.0]])
+    assert ok.tolist() == [True, False]
+    np.testing.assert_array_equal(xy[0], [0.1, 0.1])

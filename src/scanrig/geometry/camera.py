@@ -169,6 +169,22 @@ class Camera:
         q[z <= 0.0] = np.nan
         return q
 
+    def project_with_point_jacobian(self, p_world):
+        """Project points and return only ``dq / dp_world``, the cheap Jacobian triangulation needs.
+
+        Returns
+        -------
+        q : ndarray of shape (N, 2)
+            Pixels, NaN behind the camera.
+        J_point : ndarray of shape (N, 2, 3)
+            ``dq / dp_world``, NaN behind the camera.
+        """
+        p = check_points(p_world, 3, "p_world")
+        q, J_q_pcam, _, _ = self._project_parts(p, with_coefficients=False)
+        J_point = J_q_pcam @ self.cam_from_world.R
+        J_point[np.isnan(q[:, 0])] = np.nan
+        return q, J_point
+
     def project_with_jacobians(self, p_world):
         """Project points and return the analytic Jacobians of the pixels.
 
@@ -190,22 +206,8 @@ class Camera:
         """
         p = check_points(p_world, 3, "p_world")
         pose = self.cam_from_world
-        p_cam = p @ pose.R.T + pose.t
-        x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv_z = 1.0 / z
-            xy = p_cam[:, :2] * inv_z[:, None]
-        xy_d, J_dist_xy, J_dist_coeffs = distortion.distort_with_jacobians(xy, self._dist_full)
+        q, J_q_pcam, xy_d, J_dist_coeffs = self._project_parts(p, with_coefficients=True)
         f = self.params[:2]
-        q = xy_d * f + self.params[2:4]
-
-        J_xy_pcam = np.zeros((p.shape[0], 2, 3))  # d(x/z, y/z) / d p_cam
-        J_xy_pcam[:, 0, 0] = inv_z
-        J_xy_pcam[:, 1, 1] = inv_z
-        J_xy_pcam[:, 0, 2] = -x * inv_z * inv_z
-        J_xy_pcam[:, 1, 2] = -y * inv_z * inv_z
-        J_q_pcam = f[None, :, None] * np.einsum("nij,njk->nik", J_dist_xy, J_xy_pcam)
-
         J_point = J_q_pcam @ pose.R
         J_rot = rotated_point_jacobian_rvec(pose.rvec, p)
         J_pose = np.concatenate([np.einsum("nij,njk->nik", J_q_pcam, J_rot), J_q_pcam], axis=2)
@@ -218,10 +220,35 @@ class Camera:
         J_intr[:, 1, 3] = 1.0
         J_intr[:, :, 4:] = f[None, :, None] * J_dist_coeffs[:, :, :n_dist]
 
-        behind = z <= 0.0
-        for arr in (q, J_point, J_pose, J_intr):
+        behind = np.isnan(q[:, 0])
+        for arr in (J_point, J_pose, J_intr):
             arr[behind] = np.nan
         return q, J_point, J_pose, J_intr
+
+    def _project_parts(self, p: np.ndarray, with_coefficients: bool):
+        """Pixels ``(N, 2)`` (NaN behind), ``dq/dp_cam`` ``(N, 2, 3)``, distorted coordinates and,
+        if asked, the distortion's coefficient Jacobian ``(N, 2, 12)`` (else None)."""
+        pose = self.cam_from_world
+        p_cam = p @ pose.R.T + pose.t
+        x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv_z = 1.0 / z
+            xy = p_cam[:, :2] * inv_z[:, None]
+        if with_coefficients:
+            xy_d, J_dist_xy, J_dist_coeffs = distortion.distort_with_jacobians(xy, self._dist_full)
+        else:
+            (xy_d, J_dist_xy), J_dist_coeffs = distortion.distort_with_point_jacobian(xy, self._dist_full), None
+        f = self.params[:2]
+        q = xy_d * f + self.params[2:4]
+        # dq/dp_cam = diag(f) · J_dist · d(x/z, y/z)/dp_cam, written out for the 2x3 product.
+        J_q_pcam = np.empty((p.shape[0], 2, 3))
+        for row in range(2):
+            a, b = J_dist_xy[:, row, 0] * f[row], J_dist_xy[:, row, 1] * f[row]
+            J_q_pcam[:, row, 0] = a * inv_z
+            J_q_pcam[:, row, 1] = b * inv_z
+            J_q_pcam[:, row, 2] = -(a * x + b * y) * inv_z * inv_z
+        q[z <= 0.0] = np.nan
+        return q, J_q_pcam, xy_d, J_dist_coeffs
 
     # --- back-projection ----------------------------------------------------------------------
     def unproject(self, q):

@@ -148,6 +148,14 @@ def _distort_and_jacobian_xy(x: np.ndarray, y: np.ndarray, d: np.ndarray):
     return xd, yd, j00, j01, j10, j11, r2, den
 
 
+def distort_with_point_jacobian(xy: np.ndarray, d: np.ndarray):
+    """Distortion and ``d xy_d / d xy`` only: ``(N, 2)``, ``(N, 2, 2)`` (see :func:`distort_with_jacobians`)."""
+    xd, yd, j00, j01, j10, j11, _, _ = _distort_and_jacobian_xy(xy[:, 0], xy[:, 1], d)
+    J_xy = np.empty(xy.shape[:1] + (2, 2))
+    J_xy[:, 0, 0], J_xy[:, 0, 1], J_xy[:, 1, 0], J_xy[:, 1, 1] = j00, j01, j10, j11
+    return np.stack([xd, yd], axis=1), J_xy
+
+
 def distort_with_jacobians(xy: np.ndarray, d: np.ndarray):
     """Distortion and its analytic derivatives.
 
@@ -168,9 +176,9 @@ def distort_with_jacobians(xy: np.ndarray, d: np.ndarray):
         ``d xy_d / d coefficients`` in the full order.
     """
     x, y = xy[:, 0], xy[:, 1]
-    xd, yd, j00, j01, j10, j11, r2, den = _distort_and_jacobian_xy(x, y, d)
-    xy_d = np.stack([xd, yd], axis=1)
-    J_xy = np.stack([np.stack([j00, j01], axis=1), np.stack([j10, j11], axis=1)], axis=1)
+    xy_d, J_xy = distort_with_point_jacobian(xy, d)
+    r2 = x * x + y * y
+    den = 1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
     r4 = r2 * r2
     r6 = r4 * r2
     radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / den
@@ -216,6 +224,8 @@ def undistort(xy_d: np.ndarray, d: np.ndarray):
     """
     n = xy_d.shape[0]
     finite = np.all(np.isfinite(xy_d), axis=1)
+    if not np.any(d):  # a pinhole camera: nothing to invert
+        return np.where(finite[:, None], xy_d, np.nan), finite
     xy = np.where(finite[:, None], xy_d, 0.0)
     # Start from one fixed-point step of the radial part: saves a Newton iteration.
     r2 = np.einsum("ij,ij->i", xy, xy)

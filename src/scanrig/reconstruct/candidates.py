@@ -1,0 +1,112 @@
+"""Traces table -> padded per-frame, per-camera candidate arrays for vectorised matching."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from scanrig.errors import InputError
+from scanrig.io.session import natural_key
+
+#: Candidates kept per camera and frame, brightest first (``rank``). Spot frames rarely hold more
+#: than a spot and two reflections; the hypothesis count grows as (K + 1) ** n_cams.
+MAX_CANDIDATES = 4
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Spot candidates of every frame and camera, padded to ``K``.
+
+    Attributes
+    ----------
+    frames : list of str
+        Frame stems in natural order; the position is the ``frame`` index of ``points.ply``.
+    cameras : list of str
+        Camera names in rig order.
+    q : ndarray of shape (n_frames, n_cams, K, 2)
+        Candidate centres, pixels; NaN padding.
+    cov : ndarray of shape (n_frames, n_cams, K, 2, 2)
+        Centre covariances, px² (NaN padding).
+    saturated : ndarray of shape (n_frames, n_cams, K), bool
+    count : ndarray of shape (n_frames, n_cams), int
+        Candidates kept per frame and camera.
+    n_ignored : int
+        Candidates beyond ``K`` per camera and frame (the dimmest), not considered.
+    """
+
+    frames: list[str]
+    cameras: list[str]
+    q: np.ndarray
+    cov: np.ndarray
+    saturated: np.ndarray
+    count: np.ndarray
+    n_ignored: int
+
+
+def frame_order(table: pa.Table, metadata: dict | None = None) -> list[str]:
+    """Frame stems of a traces table in natural order (including frames ``scanrig detect``
+    processed without finding a candidate, listed in its metadata under ``frames_done``)."""
+    stems = set(table.column("frame").unique().to_pylist())
+    for pair in (metadata or {}).get("frames_done", []):
+        if isinstance(pair, (list, tuple)) and len(pair) == 2:
+            stems.add(str(pair[1]))
+    return sorted(stems, key=natural_key)
+
+
+def spot_candidates(table: pa.Table, cameras: list[str], frames: list[str],
+                    max_per_camera: int = MAX_CANDIDATES) -> Candidates:
+    """Gather the spot rows of a traces table into padded arrays.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        Traces (``docs/architecture.md``); only ``kind == "spot"`` rows are used.
+    cameras : list of str
+        Rig camera names, in rig order; rows of other cameras raise.
+    frames : list of str
+        Frame stems, in the order that defines frame indices (see :func:`frame_order`).
+    max_per_camera : int
+        ``K``: candidates kept per camera and frame, by ``rank``.
+
+    Raises
+    ------
+    InputError
+        If a row names a camera that is not in ``cameras``.
+    """
+    spots = table.filter(pc.equal(table.column("kind"), "spot"))
+    cam_lookup = pc.index_in(spots.column("camera"), value_set=pa.array(cameras, pa.string()))
+    if cam_lookup.null_count:
+        bad = sorted(set(pc.filter(spots.column("camera"), pc.is_null(cam_lookup)).to_pylist()))
+        raise InputError(f"traces name cameras {bad} that are not in the rig (cameras: {cameras})")
+    cam_idx = cam_lookup.to_numpy(zero_copy_only=False).astype(np.int64)
+    frame_idx = pc.index_in(spots.column("frame"), value_set=pa.array(frames, pa.string())).to_numpy(
+        zero_copy_only=False).astype(np.int64)
+    rank = spots.column("rank").to_numpy()
+    order = np.lexsort((rank, cam_idx, frame_idx))
+    f, c = frame_idx[order], cam_idx[order]
+    group = f * len(cameras) + c
+    start = np.r_[0, np.flatnonzero(np.diff(group)) + 1]
+    pos = np.arange(group.size) - np.repeat(start, np.diff(np.r_[start, group.size]))
+    keep = pos < max_per_camera
+
+    n_frames, n_cams, K = len(frames), len(cameras), max_per_camera
+    q = np.full((n_frames, n_cams, K, 2), np.nan)
+    cov = np.full((n_frames, n_cams, K, 2, 2), np.nan)
+    saturated = np.zeros((n_frames, n_cams, K), bool)
+    idx = (f[keep], c[keep], pos[keep])
+    rows = order[keep]
+
+    def col(name):
+        return spots.column(name).to_numpy()[rows]
+
+    q[idx] = np.stack([col("u"), col("v")], axis=1)
+    cov[idx + (0, 0)] = col("cov_uu")
+    cov[idx + (0, 1)] = cov[idx + (1, 0)] = col("cov_uv")
+    cov[idx + (1, 1)] = col("cov_vv")
+    saturated[idx] = col("saturated")
+    count = np.zeros((n_frames, n_cams), np.int64)
+    np.add.at(count, (f[keep], c[keep]), 1)
+    return Candidates(frames, list(cameras), q, cov, saturated, count, int((~keep).sum()))

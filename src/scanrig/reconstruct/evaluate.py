@@ -1,0 +1,216 @@
+"""Distance of reconstructed points to a true surface (simulator ``truth/meshes/*.ply``).
+
+The exact point–triangle distance (Ericson, *Real-Time Collision Detection*, §5.1.5) is evaluated
+only for triangles that can be the nearest: the mesh is first subdivided so that no edge exceeds
+``max_edge_m``, the nearest centroids (KD-tree) give an upper bound ``d0`` of the distance, and
+every triangle whose centroid lies within ``d0 + max_edge_m`` is then checked. trimesh's own
+``proximity`` module needs the optional ``rtree`` package, which scanrig does not depend on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from scanrig.errors import FileFormatError, InputError
+
+#: Longest triangle edge after subdivision; bounds the search radius beyond the first guess.
+MAX_EDGE_M = 0.005
+#: Nearest centroids used for the first upper bound of the distance.
+FIRST_GUESS_K = 4
+#: Distance beyond which a point counts as an outlier in the statistics (the brief's 1 mm).
+OUTLIER_DISTANCE_M = 1e-3
+#: Points per block of the exact search (bounds memory).
+BLOCK_POINTS = 20000
+
+
+def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Euclidean distance from points to triangles, row by row.
+
+    Parameters
+    ----------
+    p, a, b, c : ndarray of shape (M, 3)
+        Points and triangle corners, metres.
+
+    Returns
+    -------
+    ndarray of shape (M,)
+        Distance from ``p[i]`` to triangle ``(a[i], b[i], c[i])``, metres.
+    """
+    def dot(x, y):
+        return np.einsum("ij,ij->i", x, y)
+
+    ab, ac, ap = b - a, c - a, p - a
+    bp, cp = p - b, p - c
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        closest = a + ab * (vb / denom)[:, None] + ac * (vc / denom)[:, None]  # inside the face
+        # Voronoi regions in reverse order of Ericson's tests, so that his first test wins.
+        regions = [
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+             b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None]),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + ac * (d2 / (d2 - d6))[:, None]),
+            ((d6 >= 0) & (d5 <= d6), c),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + ab * (d1 / (d1 - d3))[:, None]),
+            ((d3 >= 0) & (d4 <= d3), b),
+            ((d1 <= 0) & (d2 <= 0), a),
+        ]
+    for mask, point in regions:
+        closest = np.where(mask[:, None], point, closest)
+    return np.linalg.norm(p - closest, axis=1)
+
+
+@dataclass(frozen=True)
+class SurfaceDistance:
+    """Unsigned distance to a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray of shape (V, 3)
+        Mesh vertices, metres.
+    faces : ndarray of shape (F, 3), int
+        Triangles.
+    max_edge_m : float
+        Subdivision size (see the module notes).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    max_edge_m: float = MAX_EDGE_M
+
+    def __post_init__(self):
+        import trimesh
+
+        v, f = trimesh.remesh.subdivide_to_size(np.asarray(self.vertices, np.float64),
+                                                np.asarray(self.faces, np.int64), self.max_edge_m)
+        tri = v[f]
+        object.__setattr__(self, "_tri", tri)
+        object.__setattr__(self, "_tree", cKDTree(tri.mean(axis=1)))
+
+    def __call__(self, p_world: np.ndarray) -> np.ndarray:
+        """Distances ``(N,)`` (metres) of points ``(N, 3)`` to the surface."""
+        p_world = np.asarray(p_world, np.float64)
+        out = np.empty(p_world.shape[0])
+        for start in range(0, p_world.shape[0], BLOCK_POINTS):
+            out[start:start + BLOCK_POINTS] = self._block(p_world[start:start + BLOCK_POINTS])
+        return out
+
+    def _block(self, p: np.ndarray) -> np.ndarray:
+        tri = self._tri
+        k = min(FIRST_GUESS_K, len(tri))
+        _, near = self._tree.query(p, k=k)
+        near = near.reshape(len(p), k)
+        rows = np.repeat(np.arange(len(p)), k)
+        d0 = point_triangle_distance(p[rows], *tri[near.ravel()].transpose(1, 0, 2)).reshape(len(p), k).min(axis=1)
+        # A triangle within d0 of p has its centroid within d0 + (its circumradius <= max edge).
+        lists = self._tree.query_ball_point(p, d0 + self.max_edge_m, return_sorted=False)
+        counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+        cand = np.fromiter((i for x in lists for i in x), np.int64, int(counts.sum()))
+        rows = np.repeat(np.arange(len(p)), counts)
+        d = point_triangle_distance(p[rows], *tri[cand].transpose(1, 0, 2))
+        best = np.full(len(p), np.inf)
+        np.minimum.at(best, rows, d)
+        return np.minimum(best, d0)
+
+
+def load_truth_surface(truth_dir: str | Path) -> SurfaceDistance:
+    """The union of the simulator's true meshes ``truth/meshes/*.ply`` as a distance function.
+
+    Raises
+    ------
+    FileFormatError
+        If the folder holds no mesh.
+    """
+    import trimesh
+
+    folder = Path(truth_dir) / "meshes"
+    paths = sorted(folder.glob("*.ply")) if folder.is_dir() else []
+    if not paths:
+        raise FileFormatError(folder, "no true meshes (*.ply) found; --truth must be a simulator truth/ folder")
+    vertices, faces, offset = [], [], 0
+    for path in paths:
+        mesh = trimesh.load(path, force="mesh", process=False)
+        vertices.append(np.asarray(mesh.vertices, np.float64))
+        faces.append(np.asarray(mesh.faces, np.int64) + offset)
+        offset += len(mesh.vertices)
+    return SurfaceDistance(np.concatenate(vertices), np.concatenate(faces))
+
+
+def rig_alignment(rig_estimated, rig_true):
+    """The rigid transform ``true_from_estimated`` that best maps one rig's world onto another's.
+
+    A calibration defines its own world frame (the target at its first pose); to compare its
+    points with the simulator's truth, the frames are tied through the cameras themselves: each
+    camera gives ``true_from_est = cam_true⁻¹ ∘ cam_est``, and the rotations are averaged
+    (projection of their sum onto SO(3)) and the camera centres fitted in least squares.
+
+    Parameters
+    ----------
+    rig_estimated, rig_true : Rig
+        Rigs with the same camera names.
+
+    Returns
+    -------
+    RigidTransform
+    """
+    from scanrig.geometry.transform import RigidTransform
+
+    names = [n for n in rig_estimated.names if n in rig_true]
+    if len(names) < 2:
+        raise InputError(f"rig alignment needs 2 or more cameras in common, got {names}")
+    M = sum((rig_true[n].cam_from_world.inverse() @ rig_estimated[n].cam_from_world).R for n in names)
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    c_est = np.array([rig_estimated[n].center_world for n in names])
+    c_true = np.array([rig_true[n].center_world for n in names])
+    t = (c_true - c_est @ R.T).mean(axis=0)
+    return RigidTransform(R, t)
+
+
+def distance_statistics(distance_m: np.ndarray, outlier_m: float = OUTLIER_DISTANCE_M) -> dict:
+    """RMS, mean, 95th/99th percentile, maximum and fraction beyond ``outlier_m`` of distances (metres)."""
+    d = np.asarray(distance_m, np.float64)
+    if d.size == 0:
+        raise InputError("no points to evaluate")
+    return {
+        "n_points": int(d.size),
+        "rms_m": float(np.sqrt(np.mean(d**2))),
+        "mean_m": float(np.mean(d)),
+        "p95_m": float(np.percentile(d, 95)),
+        "p99_m": float(np.percentile(d, 99)),
+        "max_m": float(np.max(d)),
+        "fraction_beyond": float(np.mean(d > outlier_m)),
+        "outlier_m": float(outlier_m),
+    }
+
+
+def save_histogram(distance_m: np.ndarray, path: str | Path, title: str = "") -> None:
+    """Histogram of distances in millimetres (log counts), written atomically as PNG."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scanrig.io.atomic import write_bytes_atomic
+
+    d_mm = np.asarray(distance_m) * 1e3
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.hist(d_mm, bins=100, log=True, color="tab:blue")
+    ax.axvline(OUTLIER_DISTANCE_M * 1e3, color="tab:red", ls="--", label="1 mm")
+    ax.set_xlabel("distance to true surface (mm)")
+    ax.set_ylabel("points")
+    ax.set_title(title or f"{d_mm.size} points, RMS {np.sqrt(np.mean(d_mm**2)):.3f} mm")
+    ax.legend()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())

@@ -1,0 +1,167 @@
+"""``reconstruct_session``: rig.toml + traces.parquet -> points.ply, with consistency checks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD
+from scanrig.geometry.uncertainty import sigma_from_covariance
+from scanrig.io.rig_file import load_rig
+from scanrig.io.session import Session, read_image
+from scanrig.laser.traces import read_traces
+from scanrig.reconstruct.candidates import frame_order
+from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
+from scanrig.reconstruct.flags import Flag
+from scanrig.reconstruct.light_plane import intersect_stripe_pixels, load_light_plane
+from scanrig.reconstruct.points import PointCloud, write_points
+from scanrig.reconstruct.spots import reconstruct_spots
+from scanrig.reconstruct.stripes import reconstruct_stripes
+
+
+def check_rig_against_session(rig, session: Session, rig_path: Path) -> None:
+    """Check that the scan folders and the rig name the same cameras with the same image sizes.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``rig_path`` and the first disagreement. Sessions without a ``scan/`` folder
+        (traces imported from elsewhere) are not checked.
+    """
+    if not (session.root / "scan").is_dir():
+        return
+    folders = session.camera_names("scan")
+    missing = [name for name in folders if name not in rig]
+    if missing:
+        raise FileFormatError(rig_path, f"has no camera {missing} for the scan folders {folders} "
+                                        f"(rig cameras: {rig.names})")
+    for name in folders:
+        paths = session.image_paths("scan", name)
+        if not paths:
+            continue
+        first = next(iter(paths.values()))
+        h, w = read_image(first).shape[:2]
+        cam = rig[name]
+        if (w, h) != (cam.width, cam.height):
+            raise FileFormatError(rig_path, f"camera {name!r} is {cam.width}x{cam.height} but "
+                                            f"{first.relative_to(session.root)} is {w}x{h}")
+
+
+def reconstruct_session(
+    root: str | Path,
+    rig_path: str | Path | None = None,
+    out_path: str | Path | None = None,
+    sigma_floor_px: float = SIGMA_FLOOR_PX,
+    gate_probability: float = GATE_PROBABILITY,
+    min_angle_deg: float = float(np.rad2deg(MIN_TRIANGULATION_ANGLE_RAD)),
+    keep_ambiguous: bool = False,
+    single_view: bool = True,
+    light_plane_path: str | Path | None = None,
+    seed: int = 0,
+    comments=(),
+    progress=None,
+) -> dict:
+    """Reconstruct the points of a session and write ``points.ply``.
+
+    Parameters
+    ----------
+    root : str or Path
+        Session folder.
+    rig_path : str or Path, optional
+        Calibration to use (default ``SESSION/rig.toml``).
+    out_path : str or Path, optional
+        Output (default ``SESSION/points.ply``).
+    sigma_floor_px, gate_probability
+        See :func:`~scanrig.reconstruct.correspondence.match_spots`.
+    min_angle_deg : float
+        Smallest triangulation angle, degrees.
+    keep_ambiguous : bool
+        Spot mode: also write the best point of ambiguous frames (flagged).
+    single_view : bool
+        Stripe mode: add the points seen by one camera, intersected with the frame's light plane.
+    light_plane_path : str or Path, optional
+        Classic single-camera mode: a calibrated ``light_plane.toml``; every brightest stripe
+        detection of its camera is intersected with it (no multi-view check, so a single-camera
+        rig is accepted).
+    seed : int
+        Seed of the robust plane fits (stripe mode); recorded in the header.
+    comments : iterable of str
+        Extra ``points.ply`` header lines (command line).
+    progress : callable, optional
+        ``progress(done, total)`` per stripe frame.
+
+    Returns
+    -------
+    dict
+        Counts: frames per outcome, points, candidates; ``mode`` and ``out`` path.
+
+    Raises
+    ------
+    InputError
+        Missing or inconsistent inputs: no rig or traces, cameras or image sizes that disagree,
+        a single-camera rig, traces that mix spots and stripes.
+    """
+    session = Session(root)
+    rig_path = Path(rig_path) if rig_path is not None else session.rig_path
+    if not rig_path.is_file():
+        raise FileFormatError(rig_path, "rig file not found (run `scanrig calibrate` first or pass --rig)")
+    rig = load_rig(rig_path)
+    if light_plane_path is None and len(rig) < 2:
+        raise InputError(f"{rig_path}: multi-view reconstruction needs at least 2 cameras, "
+                         f"the rig has {len(rig)} ({rig.names})")
+    check_rig_against_session(rig, session, rig_path)
+    table, metadata = read_traces(session.traces_path)
+    if table.num_rows == 0:
+        raise FileFormatError(session.traces_path, "holds no traces (did `scanrig detect` find the laser?)")
+    kinds = set(table.column("kind").unique().to_pylist())
+    if len(kinds) != 1:
+        raise FileFormatError(session.traces_path, f"mixes {sorted(kinds)} traces; reconstruct one kind per session")
+    mode = kinds.pop()
+    frames = frame_order(table, metadata)
+    min_angle_rad = float(np.deg2rad(min_angle_deg))
+    if light_plane_path is not None:
+        if mode != "stripe":
+            raise FileFormatError(session.traces_path, "holds spot traces; --light-plane needs stripe traces")
+        plane, camera = load_light_plane(light_plane_path)
+        if camera not in rig:
+            raise FileFormatError(light_plane_path, f"camera {camera!r} is not in {rig_path} (cameras: {rig.names})")
+        cloud, summary = _classic_single_camera(rig[camera], plane, table, frames, sigma_floor_px)
+        mode = f"stripe, light plane of {camera}"
+    elif mode == "spot":
+        cloud, summary, _ = reconstruct_spots(rig, table, frames, sigma_floor_px, gate_probability, min_angle_rad,
+                                              keep_ambiguous)
+    else:
+        cloud, summary = reconstruct_stripes(rig, table, frames, np.random.default_rng(seed), sigma_floor_px,
+                                             gate_probability, min_angle_rad, single_view, progress)
+    out = Path(out_path) if out_path is not None else session.points_path
+    stats = " ".join(f"{k}={v}" for k, v in summary.items())
+    write_points(out, cloud, comments=(f"rig: {rig_path}", f"seed: {seed}", f"mode: {mode}; {stats}", *comments))
+    summary.update(mode=mode, out=str(out), seed=seed)
+    return summary
+
+
+def _classic_single_camera(camera, plane, table, frames, sigma_floor_px):
+    """Stripe points of one camera intersected with its calibrated light plane (brightest per line)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    rows = table.filter(pc.and_(pc.equal(table.column("camera"), camera.name), pc.equal(table.column("rank"), 0)))
+
+    def col(name):
+        return rows.column(name).to_numpy()
+
+    q = np.c_[col("u"), col("v")]
+    cov = np.zeros((len(q), 2, 2))
+    cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1] = col("cov_uu"), col("cov_uv"), col("cov_vv")
+    cov[:, 1, 0] = cov[:, 0, 1]
+    cov += np.eye(2) * sigma_floor_px**2
+    p, cov_p = intersect_stripe_pixels(camera, q, cov, plane)
+    ok = np.all(np.isfinite(p), axis=1)
+    frame = pc.index_in(rows.column("frame"), value_set=pa.array(frames, pa.string())).to_numpy(zero_copy_only=False)
+    flags = np.full(ok.sum(), Flag.CALIBRATED_PLANE, np.uint16)
+    flags[col("saturated")[ok]] |= np.uint16(Flag.SATURATED)
+    cloud = PointCloud(p[ok], sigma_from_covariance(cov_p[ok]), np.ones(ok.sum()), np.full(ok.sum(), np.nan),
+                       frame[ok], flags)
+    return cloud, {"frames": len(frames), "points": len(cloud), "detections": len(q)}

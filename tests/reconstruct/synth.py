@@ -1,0 +1,174 @@
+"""Synthetic rigs and laser traces for the reconstruction tests and benchmark.
+
+The truth is built by projecting known points with ``Camera.project`` and adding Gaussian pixel
+noise of known sigma; no reconstruction code is used, so the estimators are tested against an
+independent truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scanrig.geometry import Camera, Rig, RigidTransform
+
+#: Focal length of the synthetic cameras (px): a 16 mm lens on 6.7 µm pixels, as in the notes §3.
+FOCAL_PX = 2400.0
+WIDTH, HEIGHT = 1280, 1024
+#: Mild OpenCV-5 distortion so that every path goes through the Newton undistortion.
+DIST = (-0.08, 0.05, 0.0005, -0.0003, 0.0)
+
+
+def look_at(center: np.ndarray, target: np.ndarray = np.zeros(3)) -> RigidTransform:
+    """``cam_from_world`` of a camera at ``center`` looking at ``target`` (world z up)."""
+    z = target - center
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return RigidTransform(R, -R @ center)
+
+
+def ring_rig(azimuths_deg=(-40.0, 0.0, 40.0), radius_m=1.0, height_m=0.2, model="opencv5") -> Rig:
+    """Cameras on a horizontal arc around the origin, all looking at it (the notes' §3 layout)."""
+    cams = []
+    for k, az in enumerate(np.deg2rad(azimuths_deg)):
+        center = np.array([radius_m * np.sin(az), -radius_m * np.cos(az), height_m * (1 + 0.5 * (k % 2))])
+        dist = DIST if model == "opencv5" else ()
+        params = [FOCAL_PX, FOCAL_PX, WIDTH / 2 - 0.5, HEIGHT / 2 - 0.5, *dist]
+        cams.append(Camera(f"cam{k}", model, params, WIDTH, HEIGHT, look_at(center)))
+    return Rig(cams)
+
+
+def points_in_cube(rng: np.random.Generator, n: int, half_m: float = 0.15) -> np.ndarray:
+    """``n`` points uniform in a cube of half-size ``half_m`` at the origin, metres."""
+    return rng.uniform(-half_m, half_m, (n, 3))
+
+
+def observe(rig: Rig, p_world: np.ndarray, rng: np.random.Generator, sigma_px: float) -> np.ndarray:
+    """Noisy pixels ``(n_cams, N, 2)`` of points (NaN outside an image)."""
+    q = np.stack([cam.project(p_world) for cam in rig.cameras])
+    q = q + rng.normal(0.0, sigma_px, q.shape)
+    size = np.array([WIDTH, HEIGHT])
+    outside = np.any((q < -0.5) | (q > size - 0.5), axis=2)
+    q[outside] = np.nan
+    return q
+
+
+def spot_traces(rig: Rig, p_world: np.ndarray, rng: np.random.Generator, sigma_px: float,
+                reflection_rate: float = 0.0, occlusion_rate: float = 0.0, shift_px=(8.0, 60.0)):
+    """A traces table of spot candidates for one spot per frame, with injected reflections.
+
+    Each frame ``k`` shows the spot ``p_world[k]`` (noise ``sigma_px``); with probability
+    ``occlusion_rate`` a camera misses the true spot; with probability ``reflection_rate`` a
+    camera also sees a reflection: an extra candidate shifted by ``shift_px`` in a random
+    direction, brighter (rank 0) half of the time.
+
+    Returns
+    -------
+    table : pyarrow.Table
+        Traces (``docs/architecture.md``), frames named ``f0000``...
+    is_reflection : dict
+        ``(camera, frame) -> bool array`` over that camera's candidates, in rank order.
+    """
+    import pyarrow as pa
+
+    from scanrig.laser.traces import SCHEMA
+
+    q = observe(rig, p_world, rng, sigma_px)
+    rows, truth = [], {}
+    for k in range(p_world.shape[0]):
+        frame = f"f{k:04d}"
+        for i, cam in enumerate(rig.cameras):
+            cands = []
+            if np.isfinite(q[i, k]).all() and rng.random() >= occlusion_rate:
+                cands.append((q[i, k], False))
+            if rng.random() < reflection_rate:
+                angle = rng.uniform(0, 2 * np.pi)
+                shift = rng.uniform(*shift_px)
+                base = q[i, k] if np.isfinite(q[i, k]).all() else np.array([WIDTH / 2, HEIGHT / 2])
+                reflection = (base + shift * np.array([np.cos(angle), np.sin(angle)]), True)
+                cands.insert(int(rng.random() < 0.5) * len(cands), reflection)
+            for rank, (uv, _) in enumerate(cands):
+                rows.append((cam.name, frame, uv[0], uv[1], rank))
+            if cands:
+                truth[(cam.name, frame)] = np.array([c[1] for c in cands])
+    n = len(rows)
+    cols = dict(zip(("camera", "frame", "u", "v", "rank"), map(list, zip(*rows))))
+    cols.update(kind=["spot"] * n, sigma_px=np.full(n, sigma_px), peak=np.full(n, 200.0),
+                width_px=np.full(n, 1.5), snr=np.full(n, 100.0), cov_uu=np.full(n, sigma_px**2),
+                cov_uv=np.zeros(n), cov_vv=np.full(n, sigma_px**2), line=np.full(n, -1, np.int32),
+                saturated=np.zeros(n, bool))
+    return pa.Table.from_pydict({f.name: cols[f.name] for f in SCHEMA}, schema=SCHEMA), truth
+
+
+def two_camera_table(uv_by_camera, sigma_px=0.3):
+    """Spot traces of frame ``f0`` from ``camera -> (n, 2)`` pixels, ranked in order."""
+    import pyarrow as pa
+
+    from scanrig.laser.traces import make_table
+
+    tables = []
+    for name, uv in uv_by_camera.items():
+        uv = np.atleast_2d(uv)
+        n = len(uv)
+        cols = dict(u=uv[:, 0], v=uv[:, 1], sigma_px=np.full(n, sigma_px), peak=np.full(n, 100.0),
+                    width_px=np.full(n, 1.5), snr=np.full(n, 50.0), rank=np.arange(n, dtype=np.int32),
+                    cov_uu=np.full(n, sigma_px**2), cov_uv=np.zeros(n), cov_vv=np.full(n, sigma_px**2),
+                    line=np.full(n, -1, np.int32), saturated=np.zeros(n, bool))
+        tables.append(make_table("spot", cols, camera=name, frame="f0"))
+    return pa.concat_tables(tables)
+
+
+def height_field(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The wavy test surface ``z = h(x, y)`` (metres) of the stripe tests."""
+    return 0.015 * np.sin(8.0 * x) * np.cos(6.0 * y)
+
+
+def stripe_traces(rig: Rig, offsets_m, rng: np.random.Generator, sigma_px: float,
+                  reflection_camera: int | None = None, hidden_y_m: float | None = None):
+    """Stripe traces of light planes ``x = offset`` on :func:`height_field`, one frame each.
+
+    Each camera's stripe is sampled on its image rows (``v`` exact, noise ``sigma_px`` on ``u``,
+    ``cov_vv = 0`` as the detector reports). Optionally camera ``reflection_camera`` also sees a
+    dimmer copy shifted by 15 px (rank 1), and only camera 0 sees the part ``y > hidden_y_m``.
+
+    Returns
+    -------
+    table : pyarrow.Table
+    """
+    import pyarrow as pa
+
+    from scanrig.laser.traces import SCHEMA
+
+    cols = {f.name: [] for f in SCHEMA}
+    y = np.linspace(-0.15, 0.15, 6000)
+    for k, s in enumerate(offsets_m):
+        curve = np.c_[np.full_like(y, s), y, height_field(np.full_like(y, s), y)]
+        for i, cam in enumerate(rig.cameras):
+            keep = np.ones(len(y), bool) if hidden_y_m is None or i == 0 else y <= hidden_y_m
+            q = cam.project(curve[keep])
+            order = np.argsort(q[:, 1])
+            if np.any(np.diff(q[order, 1]) == 0):
+                raise ValueError("stripe not monotonic in v")
+            rows = np.arange(np.ceil(q[:, 1].min()), np.floor(q[:, 1].max()) + 1)
+            rows = rows[(rows >= 0) & (rows <= HEIGHT - 1)]
+            u = np.interp(rows, q[order, 1], q[order, 0])
+            inside = (u >= 0) & (u <= WIDTH - 1)
+            rows, u = rows[inside], u[inside]
+            pieces = [(u + rng.normal(0.0, sigma_px, len(u)), 0)]
+            if reflection_camera == i:
+                pieces.append((u + 15.0 + rng.normal(0.0, sigma_px, len(u)), 1))
+            for uu, rank in pieces:
+                n = len(uu)
+                cols["camera"] += [cam.name] * n
+                cols["frame"] += [f"s{k:03d}"] * n
+                cols["kind"] += ["stripe"] * n
+                for name, value in (("u", uu), ("v", rows), ("sigma_px", np.full(n, sigma_px)),
+                                    ("peak", np.full(n, 150.0)), ("width_px", np.full(n, 1.5)),
+                                    ("snr", np.full(n, 60.0)), ("rank", np.full(n, rank)),
+                                    ("cov_uu", np.full(n, sigma_px**2)), ("cov_uv", np.zeros(n)),
+                                    ("cov_vv", np.zeros(n)), ("line", rows.astype(np.int32)),
+                                    ("saturated", np.zeros(n, bool))):
+                    cols[name] += list(value)
+    return pa.Table.from_pydict(cols, schema=SCHEMA)

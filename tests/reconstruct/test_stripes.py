@@ -1,0 +1,93 @@
+"""Stripe mode: epipolar matching, light plane, single-view points, reflection rejection."""
+
+import numpy as np
+import pytest
+
+from scanrig.errors import InputError
+from scanrig.geometry import Rig
+from scanrig.io.rig_file import save_rig
+from scanrig.laser.traces import write_traces
+from scanrig.reconstruct.candidates import frame_order
+from scanrig.reconstruct.flags import Flag
+from scanrig.reconstruct.pipeline import reconstruct_session
+from scanrig.reconstruct.points import read_points
+from scanrig.reconstruct.stripes import reconstruct_stripes
+from tests.reconstruct.synth import height_field, ring_rig, stripe_traces
+
+#: Noise across the stripe (px); a Gaussian fit on a good stripe reaches 0.05-0.25 px (notes §2).
+SIGMA_PX = 0.2
+#: With 0.2 px noise the points' sigma is ~0.1-0.2 mm; 0.1 mm RMS height error is the acceptance
+#: figure of the issue and about one sigma here.
+RMS_TOL_M = 1e-4
+OUTLIER_M = 1e-3
+#: Spot mode gives one point per frame; the issue asks stripes for >= 20x more.
+MIN_POINTS_PER_FRAME = 20
+
+
+def _height_errors(cloud):
+    p = cloud.p_world
+    return p[:, 2] - height_field(p[:, 0], p[:, 1])
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return ring_rig(height_m=0.6)
+
+
+def test_multi_view_stripes_are_accurate_and_dense(rig):
+    rng = np.random.default_rng(61)
+    table = stripe_traces(rig, [-0.08, 0.0, 0.07], rng, SIGMA_PX)
+    cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0))
+    dz = _height_errors(cloud)
+    assert np.sqrt(np.mean(dz**2)) < RMS_TOL_M
+    assert np.all(np.abs(dz) < OUTLIER_M)
+    assert len(cloud) / 3 >= MIN_POINTS_PER_FRAME
+    assert summary["frames_with_plane"] == 3
+    assert np.all(cloud.n_views[(cloud.flags & Flag.PLANE_SINGLE_VIEW) == 0] >= 2)
+    # the noise predicted by sigma: height errors are one component, below the largest axis
+    assert np.sqrt(np.mean((dz / cloud.sigma) ** 2)) < 1.0
+
+
+def test_reflections_are_rejected_by_the_plane(rig):
+    rng = np.random.default_rng(62)
+    table = stripe_traces(rig, [-0.05, 0.04], rng, SIGMA_PX, reflection_camera=1)
+    cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0))
+    dz = _height_errors(cloud)
+    assert summary["pairs_off_plane"] > 0
+    assert np.mean(np.abs(dz) > OUTLIER_M) == 0.0
+    assert np.sqrt(np.mean(dz**2)) < RMS_TOL_M
+
+
+def test_single_view_points_come_from_the_plane(rig):
+    rng = np.random.default_rng(63)
+    table = stripe_traces(rig, [0.05], rng, SIGMA_PX, hidden_y_m=0.08)
+    cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0))
+    single = (cloud.flags & Flag.PLANE_SINGLE_VIEW) > 0
+    assert summary["points_single_view"] == single.sum() > 20
+    y = cloud.p_world[single, 1]
+    # only camera 0 sees y > 0.08; elsewhere only the last samples of a stripe end can be single
+    assert np.all((y > 0.07) | (np.abs(y) > 0.145))
+    assert np.all(cloud.n_views[single] == 1)
+    dz = _height_errors(cloud)
+    assert np.sqrt(np.mean(dz[single] ** 2)) < RMS_TOL_M
+    without, _ = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0), single_view=False)
+    assert len(without) == len(cloud) - single.sum()
+
+
+def test_stripe_session_through_the_pipeline(rig, tmp_path):
+    rng = np.random.default_rng(64)
+    save_rig(rig, tmp_path / "rig.toml")
+    write_traces(tmp_path / "traces.parquet", stripe_traces(rig, [0.0, 0.05], rng, SIGMA_PX), {})
+    summary = reconstruct_session(tmp_path, seed=7)
+    cloud, comments = read_points(tmp_path / "points.ply")
+    assert summary["mode"] == "stripe" and len(cloud) == summary["points"] > 100
+    assert "seed: 7" in comments and set(np.unique(cloud.frame)) == {0, 1}
+
+
+def test_stripes_need_two_cameras_of_the_rig(rig):
+    rng = np.random.default_rng(65)
+    table = stripe_traces(rig, [0.0], rng, SIGMA_PX)
+    with pytest.raises(InputError, match="multi-view reconstruction needs at least 2 cameras, the rig has 1"):
+        reconstruct_stripes(Rig(rig.cameras[:1]), table, ["s000"], np.random.default_rng(0))
+    with pytest.raises(InputError, match=r"traces name cameras \['cam2'\] that are not in the rig"):
+        reconstruct_stripes(Rig(rig.cameras[:2]), table, ["s000"], np.random.default_rng(0))
