@@ -1,0 +1,439 @@
+"""Joint sparse bundle adjustment of every camera's intrinsics and pose and every target pose.
+
+Unknowns: per camera its free intrinsic parameters and ``cam_from_world`` (rvec, tvec); per
+shot ``world_from_target`` (rvec, tvec), except the reference shot whose target frame *is* the
+world (the gauge). The target geometry is known. Residual of observation i (camera c, shot s,
+target point p, pixel q, weight w)::
+
+    r_i = sqrt(w_i * irls_i) * (project_c(world_from_target_s · p) - q)       (pixels)
+
+The Jacobian is assembled from the camera model's analytic derivatives
+(:meth:`Camera.project_with_jacobians`) into a scipy.sparse matrix.
+
+Robustness: iteratively reweighted least squares with Huber weights on each observation's
+residual norm (scale from the median residual), then iterated outlier rejection at
+:data:`OUTLIER_SIGMAS` robust sigmas; every rejected observation is listed in the result.
+The final solve uses plain least squares on the inliers, so the covariance is the textbook one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse
+
+from scanrig.calibration.lm import COST_RTOL, levenberg_marquardt
+from scanrig.calibration.observations import Observations
+from scanrig.errors import EstimationError, InputError
+from scanrig.geometry.camera import Camera
+from scanrig.geometry.transform import RigidTransform, skew
+from scanrig.targets import Target
+
+#: Huber threshold on the normalised residual norm (robust sigmas). 2.0 keeps ~86 % of a clean
+#: 2-D Gaussian sample at full weight (Rayleigh CDF at 2) while capping gross errors.
+HUBER_SIGMAS = 2.0
+#: Rejection threshold (robust sigmas): a clean 2-D Gaussian residual norm exceeds 5 sigma with
+#: probability exp(-12.5) = 3.7e-6, so clean data loses essentially nothing.
+OUTLIER_SIGMAS = 5.0
+#: Median of a 2-D standard normal vector's norm (Rayleigh): sqrt(2 ln 2).
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
+#: Rounds of reject-and-resolve before giving up on further outliers.
+MAX_REJECTION_ROUNDS = 4
+#: IRLS reweighting rounds per rejection round.
+IRLS_ROUNDS = 3
+#: Relative cost change at which the intermediate (reweighting) solves stop; the weights change
+#: more than that between rounds anyway. The final solve runs to lm.COST_RTOL.
+IRLS_COST_RTOL = 1e-6
+#: Largest change of any IRLS weight for the weights to count as settled.
+IRLS_WEIGHT_ATOL = 0.02
+
+
+@dataclass
+class Layout:
+    """Where each unknown sits in the parameter vector.
+
+    Attributes
+    ----------
+    intrinsics : list of ndarray of int
+        Per camera, the positions in ``x`` of its free intrinsic parameters (-1 = held fixed).
+    camera_pose : list of slice or None
+        Per camera, its 6 pose parameters (rvec, tvec of ``cam_from_world``); None = fixed.
+    shot_pose : list of slice or None
+        Per shot, its 6 pose parameters (rvec, tvec of ``world_from_target``); None = fixed
+        (the reference shot) or not solved (see ``shot_active``).
+    shot_active : ndarray of bool
+    size : int
+    """
+
+    intrinsics: list[np.ndarray]
+    camera_pose: list[slice | None]
+    shot_pose: list[slice | None]
+    shot_active: np.ndarray
+    size: int
+
+    @classmethod
+    def build(cls, cameras: list[Camera], shot_active: np.ndarray, reference_shot: int,
+              fixed_params: dict[str, tuple[str, ...]], fix_poses: tuple[str, ...] = ()) -> Layout:
+        n = 0
+        intrinsics = []
+        for cam in cameras:
+            fixed = set(fixed_params.get(cam.name, ()))
+            index = np.full(len(cam.params), -1)
+            for k, pname in enumerate(cam.param_names):
+                if pname not in fixed:
+                    index[k] = n
+                    n += 1
+            intrinsics.append(index)
+        camera_pose = []
+        for cam in cameras:
+            if cam.name in fix_poses:
+                camera_pose.append(None)
+            else:
+                camera_pose.append(slice(n, n + 6))
+                n += 6
+        shot_pose = []
+        for s, active in enumerate(shot_active):
+            if active and s != reference_shot:
+                shot_pose.append(slice(n, n + 6))
+                n += 6
+            else:
+                shot_pose.append(None)
+        return cls(intrinsics, camera_pose, shot_pose, np.asarray(shot_active, dtype=bool), n)
+
+
+@dataclass
+class State:
+    """Cameras and target poses at one parameter vector."""
+
+    cameras: list[Camera]
+    world_from_target: list[RigidTransform | None]
+
+
+def pack(state: State, layout: Layout) -> np.ndarray:
+    """Parameter vector of a state."""
+    x = np.zeros(layout.size)
+    for cam, index, pose in zip(state.cameras, layout.intrinsics, layout.camera_pose):
+        free = index >= 0
+        x[index[free]] = cam.params[free]
+        if pose is not None:
+            x[pose] = np.concatenate([cam.cam_from_world.rvec, cam.cam_from_world.t])
+    for wt, pose in zip(state.world_from_target, layout.shot_pose):
+        if pose is not None:
+            x[pose] = np.concatenate([wt.rvec, wt.t])
+    return x
+
+
+def unpack(x: np.ndarray, layout: Layout, template: State) -> State:
+    """State at parameter vector ``x``; fixed values come from ``template``."""
+    poses = [wt if pose is None else RigidTransform.from_rvec_tvec(x[pose][:3], x[pose][3:])
+             for wt, pose in zip(template.world_from_target, layout.shot_pose)]
+    return State(unpack_cameras(x, layout, template.cameras), poses)
+
+
+def unpack_cameras(x: np.ndarray, layout: Layout, cameras: list[Camera]) -> list[Camera]:
+    """Cameras at parameter vector ``x``; fixed values come from ``cameras``."""
+    out = []
+    for cam, index, pose in zip(cameras, layout.intrinsics, layout.camera_pose):
+        params = cam.params.copy()
+        free = index >= 0
+        params[free] = x[index[free]]
+        cam_from_world = cam.cam_from_world if pose is None else RigidTransform.from_rvec_tvec(x[pose][:3], x[pose][3:])
+        out.append(Camera(cam.name, cam.model, params, cam.width, cam.height, cam_from_world))
+    return out
+
+
+def project_observations(state: State, obs: Observations, p_target: np.ndarray) -> np.ndarray:
+    """(N, 2) predicted pixels of every observation (NaN behind a camera or for inactive shots)."""
+    p_world = np.full_like(p_target, np.nan)
+    for s in np.unique(obs.shot):
+        rows = obs.shot == s
+        pose = state.world_from_target[s]
+        if pose is not None:
+            p_world[rows] = pose.apply(p_target[rows])
+    q = np.full((len(obs), 2), np.nan)
+    for c, cam in enumerate(state.cameras):
+        rows = obs.camera == c
+        if np.any(rows):
+            q[rows] = cam.project(p_world[rows])
+    return q
+
+
+def rotation_jacobians(rvecs: np.ndarray):
+    """Rotation matrices and the factor ``M`` of d(R p)/d rvec = -R [p]x M, for many rotations.
+
+    The batched form of :func:`scanrig.geometry.transform.rotated_point_jacobian_rvec`
+    (Gallego & Yezzi 2015): one vectorised call for every shot instead of one call per shot.
+
+    Parameters
+    ----------
+    rvecs : ndarray of shape (K, 3)
+
+    Returns
+    -------
+    R, M : ndarray of shape (K, 3, 3)
+    """
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(rvecs).as_matrix().reshape(-1, 3, 3)
+    theta2 = np.sum(rvecs ** 2, axis=1)
+    M = np.broadcast_to(np.eye(3), R.shape).copy()
+    big = theta2 >= 1e-24
+    v = rvecs[big]
+    M[big] = (v[:, :, None] * v[:, None, :]
+              + (np.swapaxes(R[big], 1, 2) - np.eye(3)) @ skew(v)) / theta2[big, None, None]
+    return R, M
+
+
+class Problem:
+    """Residuals and sparse Jacobian of a fixed set of observations, as a function of ``x``.
+
+    The sparsity pattern is computed once; each evaluation only fills the non-zero values.
+
+    Parameters
+    ----------
+    obs : Observations
+        Observations of solved shots only.
+    p_target : ndarray of shape (N, 3)
+        Target coordinates of each observation.
+    layout : Layout
+    template : State
+        Values of the parameters held fixed.
+    sqrt_w : ndarray of shape (N,)
+        Square roots of the observation weights.
+    """
+
+    def __init__(self, obs: Observations, p_target: np.ndarray, layout: Layout, template: State,
+                 sqrt_w: np.ndarray):
+        self.obs, self.p_target, self.layout, self.template, self.sqrt_w = obs, p_target, layout, template, sqrt_w
+        n_shots = len(layout.shot_pose)
+        self._shot_rvec0 = np.zeros((n_shots, 3))
+        self._shot_t0 = np.zeros((n_shots, 3))
+        for s, pose in enumerate(template.world_from_target):
+            if pose is not None:
+                self._shot_rvec0[s], self._shot_t0[s] = pose.rvec, pose.t
+        self._shot_cols = np.array([-1 if sl is None else sl.start for sl in layout.shot_pose])
+        self._camera_rows = [np.flatnonzero(obs.camera == c) for c in range(len(template.cameras))]
+        self._skew_p = skew(p_target)
+        rows, cols = [], []
+        for c, sel in enumerate(self._camera_rows):
+            if len(sel) == 0:
+                continue
+            for block_rows, block_cols in self._column_blocks(c, sel):
+                r2 = 2 * block_rows[:, None, None] + np.arange(2)[None, :, None]
+                rr, cc = np.broadcast_arrays(r2, block_cols[:, None, :])
+                rows.append(rr.ravel())
+                cols.append(cc.ravel())
+        rows = np.concatenate(rows) if rows else np.zeros(0, int)
+        cols = np.concatenate(cols) if cols else np.zeros(0, int)
+        order = np.lexsort((cols, rows))
+        self._perm = order
+        self._indices = cols[order]
+        self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=2 * len(obs)))])
+
+    def _column_blocks(self, c: int, sel: np.ndarray):
+        """Per block kind (intrinsics, camera pose, shot pose), the observation rows (k,) and their
+        parameter columns (k, m) among camera c's observations ``sel``; same order as the values."""
+        intr = self.layout.intrinsics[c]
+        blocks = [(sel, np.broadcast_to(intr[intr >= 0], (len(sel), int(np.sum(intr >= 0)))))]
+        if self.layout.camera_pose[c] is not None:
+            start = self.layout.camera_pose[c].start
+            blocks.append((sel, np.broadcast_to(np.arange(start, start + 6), (len(sel), 6))))
+        start = self._shot_cols[self.obs.shot[sel]]
+        has = start >= 0
+        blocks.append((sel[has], start[has, None] + np.arange(6)[None, :]))
+        return blocks
+
+    def state(self, x: np.ndarray) -> State:
+        """Cameras and target poses at ``x``."""
+        return unpack(x, self.layout, self.template)
+
+    def _shot_params(self, x: np.ndarray):
+        rvec, t = self._shot_rvec0.copy(), self._shot_t0.copy()
+        for s, sl in enumerate(self.layout.shot_pose):
+            if sl is not None:
+                rvec[s], t[s] = x[sl][:3], x[sl][3:]
+        return rvec, t
+
+    def __call__(self, x: np.ndarray, jacobian: bool = True):
+        """Weighted residuals (2N,) and, if ``jacobian``, the sparse Jacobian (2N, layout.size)."""
+        obs, layout = self.obs, self.layout
+        cameras = unpack_cameras(x, self.layout, self.template.cameras)
+        rvec, t = self._shot_params(x)
+        R, M = rotation_jacobians(rvec)
+        Rs = R[obs.shot]
+        p_world = np.einsum("nij,nj->ni", Rs, self.p_target) + t[obs.shot]
+        r = np.empty((len(obs), 2))
+        if not jacobian:
+            for cam, sel in zip(cameras, self._camera_rows):
+                r[sel] = cam.project(p_world[sel]) - obs.uv[sel]
+            return (r * self.sqrt_w[:, None]).ravel()
+        J_rot = -(Rs @ self._skew_p @ M[obs.shot])      # d p_world / d shot rvec, (N, 3, 3)
+        values = []
+        for c, (cam, sel) in enumerate(zip(cameras, self._camera_rows)):
+            if len(sel) == 0:
+                continue
+            q, J_point, J_pose, J_intr = cam.project_with_jacobians(p_world[sel])
+            r[sel] = q - obs.uv[sel]
+            w = self.sqrt_w[sel, None, None]
+            intr = layout.intrinsics[c]
+            values.append((J_intr[:, :, intr >= 0] * w).ravel())
+            if layout.camera_pose[c] is not None:
+                values.append((J_pose * w).ravel())
+            has = self._shot_cols[obs.shot[sel]] >= 0
+            J_shot = np.concatenate([J_point[has] @ J_rot[sel[has]], J_point[has]], axis=2)
+            values.append((J_shot * w[has]).ravel())
+        data = np.concatenate(values)[self._perm]
+        J = scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=(2 * len(obs), layout.size))
+        return (r * self.sqrt_w[:, None]).ravel(), J
+
+@dataclass
+class Outlier:
+    """One rejected observation, for the report."""
+
+    camera: str
+    shot: str
+    point_id: int
+    residual_px: float
+
+
+@dataclass
+class BundleResult:
+    """Outcome of :func:`bundle_adjust`.
+
+    Attributes
+    ----------
+    state : State
+        Solved cameras and target poses.
+    layout : Layout
+    x : ndarray
+        Final parameter vector.
+    obs : Observations
+        The observations given.
+    inliers : ndarray of bool, shape (N,)
+        Observations used in the final solve.
+    residuals_px : ndarray of shape (N, 2)
+        Unweighted ``projected - observed`` of every observation at the solution (NaN for
+        observations of unsolved shots).
+    sigma_px : float
+        Residual scale: ``sqrt(SSR / (2 n_inliers - n_params))`` of the weighted residuals.
+    outliers : list of Outlier
+    iterations : int
+    jacobian : scipy.sparse matrix
+        Weighted Jacobian of the final inlier residuals (for the covariance).
+    """
+
+    state: State
+    layout: Layout
+    x: np.ndarray
+    obs: Observations
+    inliers: np.ndarray
+    residuals_px: np.ndarray
+    sigma_px: float
+    outliers: list[Outlier] = field(default_factory=list)
+    iterations: int = 0
+    jacobian: object = None
+
+    def rms_px(self, camera: int | None = None) -> float:
+        """RMS reprojection error over inliers (per point: sqrt(mean |e|²)), optionally of one camera."""
+        rows = self.inliers if camera is None else self.inliers & (self.obs.camera == camera)
+        return float(np.sqrt(np.mean(np.sum(self.residuals_px[rows] ** 2, axis=1))))
+
+
+def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
+                  world_from_target: list[RigidTransform | None], reference_shot: int,
+                  fixed_params: dict[str, tuple[str, ...]] | None = None, robust: bool = True,
+                  max_iterations: int = 100) -> BundleResult:
+    """Jointly refine intrinsics, camera poses and target poses.
+
+    Parameters
+    ----------
+    obs : Observations
+    target : Target
+    cameras : list of Camera
+        Initial cameras in the order of ``obs.camera_names``.
+    world_from_target : list of RigidTransform or None
+        Initial target pose per shot; shots with None are left out.
+    reference_shot : int
+        Shot whose pose is held at its given value (identity: the world frame).
+    fixed_params : dict, optional
+        ``camera name -> parameter names held fixed`` (e.g. ``("k3",)``).
+    robust : bool
+        Huber IRLS and outlier rejection (True) or plain least squares on all observations.
+    max_iterations : int
+        Per Levenberg–Marquardt run.
+
+    Raises
+    ------
+    InputError
+        If fewer residuals than unknowns remain (too few views for the model).
+    EstimationError
+        If the solve produces non-finite values.
+    """
+    shot_active = np.array([p is not None for p in world_from_target])
+    layout = Layout.build(cameras, shot_active, reference_shot, fixed_params or {})
+    template = State(list(cameras), list(world_from_target))
+    p_target, known = target.lookup(obs.point_id)
+    usable = known & shot_active[obs.shot]
+    x = pack(template, layout)
+    inliers = usable.copy()
+    outliers: list[Outlier] = []
+    total_iterations = 0
+
+    def solve(x, rows, irls_weight, cost_rtol=COST_RTOL):
+        sub = obs.subset(rows)
+        _check_redundancy(2 * len(sub), layout.size)
+        problem = Problem(sub, p_target[rows], layout, template, np.sqrt(sub.weight * irls_weight))
+        return levenberg_marquardt(problem, x, max_iterations, cost_rtol)
+
+    if robust:
+        for _ in range(MAX_REJECTION_ROUNDS):
+            irls = np.ones(inliers.sum())
+            for _ in range(IRLS_ROUNDS):
+                res = solve(x, inliers, irls, IRLS_COST_RTOL)
+                x, total_iterations = res.x, total_iterations + res.iterations
+                norm = _residual_norms(x, layout, template, obs, p_target, inliers)
+                scale = np.median(norm) / RAYLEIGH_MEDIAN
+                new_irls = np.minimum(1.0, HUBER_SIGMAS * scale / np.maximum(norm, 1e-300))
+                if np.allclose(new_irls, irls, atol=IRLS_WEIGHT_ATOL):
+                    break
+                irls = new_irls
+            norm_all = np.full(len(obs), np.nan)
+            norm_all[usable] = _residual_norms(x, layout, template, obs, p_target, usable)
+            scale = np.median(norm_all[inliers]) / RAYLEIGH_MEDIAN
+            bad = inliers & (norm_all > OUTLIER_SIGMAS * scale)
+            if not np.any(bad):
+                break
+            for i in np.flatnonzero(bad):
+                outliers.append(Outlier(obs.camera_names[obs.camera[i]], obs.shot_names[obs.shot[i]],
+                                        int(obs.point_id[i]), float(norm_all[i] / np.sqrt(obs.weight[i]))))
+            inliers &= ~bad
+    res = solve(x, inliers, np.ones(inliers.sum()))
+    x, total_iterations = res.x, total_iterations + res.iterations
+    state = unpack(x, layout, template)
+    sub = obs.subset(inliers)
+    r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight))(x, True)
+    if not np.all(np.isfinite(r)):
+        raise EstimationError("bundle adjustment diverged (points behind a camera); check the target "
+                              "definition and the image order of every camera")
+    dof = 2 * len(sub) - layout.size
+    sigma = float(np.sqrt(r @ r / dof))
+    residuals = np.full((len(obs), 2), np.nan)
+    residuals[usable] = project_observations(state, obs.subset(usable), p_target[usable]) - obs.uv[usable]
+    return BundleResult(state, layout, x, obs, inliers, residuals, sigma, outliers, total_iterations, J)
+
+
+def _residual_norms(x, layout, template, obs, p_target, rows) -> np.ndarray:
+    """Weighted residual norms (pixels × sqrt(weight)) of the selected observations."""
+    state = unpack(x, layout, template)
+    sub = obs.subset(rows)
+    q = project_observations(state, sub, p_target[rows])
+    return np.linalg.norm(q - sub.uv, axis=1) * np.sqrt(sub.weight)
+
+
+def _check_redundancy(n_residuals: int, n_params: int) -> None:
+    if n_residuals <= n_params:
+        raise InputError(
+            f"calibration has {n_residuals} residuals for {n_params} unknowns; add views or use a simpler "
+            "camera model (fewer distortion coefficients)"
+        )

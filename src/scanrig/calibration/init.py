@@ -1,0 +1,242 @@
+"""Initial values for the bundle adjustment, with no guess from the user.
+
+1. Intrinsics per camera from planar homographies (Zhang's method, ``cv2.calibrateCamera``) on
+   every board seen in every view: a planar target gives one plane per view, the cube two or
+   three planes per view, so even a single shot of the cube initialises every camera.
+2. The pose of the target in every view by PnP (IPPE for one plane, SQPnP otherwise) refined
+   with Levenberg–Marquardt.
+3. Camera and shot poses by a maximum spanning tree over the bipartite graph cameras–shots
+   (edge weight = points in the view), rooted at the first shot: world = target frame there.
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanrig.calibration.observations import Observations
+from scanrig.errors import EstimationError, InputError
+from scanrig.geometry.camera import Camera
+from scanrig.geometry.distortion import MODEL_COEFFICIENTS
+from scanrig.geometry.transform import RigidTransform
+from scanrig.targets import Target
+
+#: Fewest points of one board in one view for a homography (4 would be exact; 6 gives redundancy).
+MIN_POINTS_PER_PLANE = 6
+#: Fewest points in a view for its pose (PnP); views with fewer are dropped and reported.
+MIN_POINTS_PER_VIEW = 4
+#: A view whose PnP reprojection RMS exceeds this (pixels) is a failed detection or a wrong
+#: correspondence; it is dropped from the initialisation and reported (the BA may still use it).
+MAX_VIEW_RMS_PX = 10.0
+#: Most planes given to ``calibrateCamera`` per camera (evenly spread), to keep it fast.
+MAX_PLANES_FOR_INTRINSICS = 40
+
+
+@dataclass
+class Initialisation:
+    """Initial values and what was dropped on the way.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        Cameras in rig order, ``cam_from_world`` set (world = target frame at :attr:`reference_shot`).
+    world_from_target : list of RigidTransform or None
+        Per shot; None for shots not connected to the reference shot (excluded from the solve).
+    reference_shot : int
+        The shot whose target frame is the world frame.
+    dropped_views : list of (camera name, shot name, reason)
+    """
+
+    cameras: list[Camera]
+    world_from_target: list[RigidTransform | None]
+    reference_shot: int
+    dropped_views: list[tuple[str, str, str]] = field(default_factory=list)
+
+
+def initialise(obs: Observations, target: Target, models: dict[str, str]) -> Initialisation:
+    """Initial intrinsics and poses of every camera and shot (see the module docstring).
+
+    Parameters
+    ----------
+    obs : Observations
+    target : Target
+    models : dict
+        ``camera name -> model`` (``"opencv4"``, ``"opencv5"``, ``"opencv8"``, ...).
+
+    Raises
+    ------
+    InputError
+        A camera never sees the target, or the cameras do not form one connected graph through
+        shared shots.
+    EstimationError
+        Homographies give no usable intrinsics for a camera.
+    """
+    counts = obs.view_counts()
+    for c, name in enumerate(obs.camera_names):
+        if counts[c].sum() == 0:
+            raise InputError(f"camera {name!r}: the target was never detected in its calibration images")
+    dropped: list[tuple[str, str, str]] = []
+    cameras = [_intrinsics(obs, target, c, models[name]) for c, name in enumerate(obs.camera_names)]
+    cam_from_target = {}
+    for c, s in zip(*np.nonzero(counts)):
+        cam_name, shot_name = obs.camera_names[c], obs.shot_names[s]
+        if counts[c, s] < MIN_POINTS_PER_VIEW:
+            dropped.append((cam_name, shot_name, f"{counts[c, s]} points < {MIN_POINTS_PER_VIEW}"))
+            continue
+        rows = (obs.camera == c) & (obs.shot == s)
+        pose, rms = view_pose(cameras[c], target, obs.point_id[rows], obs.uv[rows])
+        if pose is None or rms > MAX_VIEW_RMS_PX:
+            dropped.append((cam_name, shot_name, f"PnP failed (rms {rms:.3g} px)"))
+            continue
+        cam_from_target[(int(c), int(s))] = (pose, int(counts[c, s]))
+    cam_from_world, world_from_target, reference = _spanning_tree(cam_from_target, obs)
+    cameras = [cam.with_pose(cam_from_world[c]) for c, cam in enumerate(cameras)]
+    return Initialisation(cameras, world_from_target, reference, dropped)
+
+
+def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera:
+    """Zhang initialisation of one camera from every board-in-view with enough points."""
+    import cv2
+
+    name = obs.camera_names[c]
+    width, height = obs.image_sizes[name]
+    rows = np.flatnonzero(obs.camera == c)
+    board_idx = target.board_of(obs.point_id[rows])
+    planes_obj, planes_img = [], []
+    key = obs.shot[rows] * (len(target.boards) + 1) + board_idx
+    for k in np.unique(key[board_idx >= 0]):
+        sel = rows[key == k]
+        if len(sel) < MIN_POINTS_PER_PLANE:
+            continue
+        planes_obj.append(target.points_on_board(obs.point_id[sel]).astype(np.float32))
+        planes_img.append(obs.uv[sel].astype(np.float32))
+    if not planes_obj:
+        raise InputError(f"camera {name!r}: no view shows {MIN_POINTS_PER_PLANE} or more points of one board; "
+                         "take closer or more frontal calibration images")
+    if len(planes_obj) > MAX_PLANES_FOR_INTRINSICS:
+        pick = np.linspace(0, len(planes_obj) - 1, MAX_PLANES_FOR_INTRINSICS).round().astype(int)
+        planes_obj = [planes_obj[i] for i in pick]
+        planes_img = [planes_img[i] for i in pick]
+    flags = cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3
+    if len(planes_obj) < 3:
+        # One or two planes fix the focal length only: keep the principal point at the centre.
+        flags |= cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2
+    try:
+        rms, K, dist, _, _ = cv2.calibrateCamera(planes_obj, planes_img, (width, height), None, None, flags=flags)
+    except cv2.error as exc:
+        raise EstimationError(f"camera {name!r}: homography initialisation failed ({exc.err}); "
+                              "add views of the target at several tilts") from None
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise EstimationError(f"camera {name!r}: homography initialisation gave no focal length; "
+                              "add views of the target at several tilts")
+    n_dist = len(MODEL_COEFFICIENTS[model])
+    coeffs = np.zeros(n_dist)
+    d = np.ravel(dist)
+    coeffs[:min(n_dist, len(d), 5)] = d[:min(n_dist, len(d), 5)]
+    params = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], coeffs])
+    return Camera(name, model, params, width, height)
+
+
+def view_pose(camera: Camera, target: Target, point_ids: np.ndarray, uv: np.ndarray):
+    """Pose ``cam_from_target`` of one view by PnP with the camera's intrinsics.
+
+    Returns
+    -------
+    pose : RigidTransform or None
+        None when PnP fails.
+    rms_px : float
+        Reprojection RMS of the view at that pose (inf on failure).
+    """
+    import cv2
+
+    p_target, known = target.lookup(point_ids)
+    p_target, uv = p_target[known], uv[known]
+    if len(p_target) < MIN_POINTS_PER_VIEW:
+        return None, np.inf
+    K, dist = camera.K, camera.dist
+    planar = np.ptp(_plane_distances(p_target)) < 1e-9
+    method = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    try:
+        ok, rvec, tvec = cv2.solvePnP(p_target, uv, K, dist, flags=method)
+        if ok and np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec)):
+            rvec, tvec = cv2.solvePnPRefineLM(p_target, uv, K, dist, rvec, tvec)
+    except cv2.error:   # degenerate point sets (e.g. all on one line)
+        ok = False
+    if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        return None, np.inf
+    pose = RigidTransform.from_rvec_tvec(rvec.ravel(), tvec.ravel())
+    q = camera.with_pose(pose).project(p_target)
+    rms = float(np.sqrt(np.nanmean(np.sum((q - uv) ** 2, axis=1))))
+    return pose, rms if np.isfinite(rms) else np.inf
+
+
+def _plane_distances(points: np.ndarray) -> np.ndarray:
+    """Signed distances of points to their best-fit plane."""
+    centred = points - points.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    return centred @ normal
+
+
+def _spanning_tree(cam_from_target: dict, obs: Observations):
+    """Chain view poses into camera and shot poses along a maximum spanning tree (Prim)."""
+    n_cams, n_shots = len(obs.camera_names), len(obs.shot_names)
+    shots_seen = sorted({s for _, s in cam_from_target})
+    if not shots_seen:
+        raise InputError("no view has enough target points for a pose; check the target.toml against the images")
+    # Nodes: ("c", i) cameras, ("s", j) shots. Root: the first shot with a view.
+    by_node: dict = {}
+    for (c, s), (pose, n) in cam_from_target.items():
+        by_node.setdefault(("c", c), []).append((n, ("s", s), pose))
+        by_node.setdefault(("s", s), []).append((n, ("c", c), pose))
+    cam_from_world: dict[int, RigidTransform] = {}
+    world_from_target: dict[int, RigidTransform] = {}
+    # Root at the first shot that reaches the most cameras (normally shot 0).
+    reference = _best_root(by_node, shots_seen)
+    world_from_target[reference] = RigidTransform.identity()
+    heap: list = []
+
+    def push(node):
+        for n, other, pose in by_node.get(node, []):
+            heapq.heappush(heap, (-n, id(pose), other, node, pose))
+
+    push(("s", reference))
+    while heap:
+        _, _, node, parent, cam_from_target_pose = heapq.heappop(heap)
+        kind, idx = node
+        if (kind == "c" and idx in cam_from_world) or (kind == "s" and idx in world_from_target):
+            continue
+        if kind == "c":   # parent is a shot
+            cam_from_world[idx] = cam_from_target_pose @ world_from_target[parent[1]].inverse()
+        else:             # parent is a camera
+            world_from_target[idx] = cam_from_world[parent[1]].inverse() @ cam_from_target_pose
+        push(node)
+    missing = [obs.camera_names[c] for c in range(n_cams) if c not in cam_from_world]
+    if missing:
+        reached = [obs.camera_names[c] for c in sorted(cam_from_world)]
+        raise InputError(f"camera graph is disconnected: cameras {missing} share no shot (seen by two cameras) "
+                         f"with cameras {reached}; add shots where the target is seen by both groups")
+    return ([cam_from_world[c] for c in range(n_cams)],
+            [world_from_target.get(s) for s in range(n_shots)], reference)
+
+
+def _best_root(by_node: dict, shots_seen: list[int]) -> int:
+    """The first shot of the largest connected component (so all cameras are reachable if possible)."""
+    seen: set = set()
+    best, best_size = shots_seen[0], -1
+    for s in shots_seen:
+        if ("s", s) in seen:
+            continue
+        stack, comp = [("s", s)], set()
+        while stack:
+            node = stack.pop()
+            if node in comp:
+                continue
+            comp.add(node)
+            stack.extend(other for _, other, _ in by_node.get(node, []))
+        seen |= comp
+        n_cams = sum(1 for k, _ in comp if k == "c")
+        if n_cams > best_size:
+            best, best_size = s, n_cams
+    return best

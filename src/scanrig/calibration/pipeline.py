@@ -1,0 +1,291 @@
+"""Calibration from a session folder: detect, initialise, bundle-adjust, judge, write.
+
+``calibrate_session`` checks every input before computing anything and writes nothing until the
+solve has succeeded: ``rig.toml`` (atomically, last) and the report folder
+``calibration_report/`` (summary, detections, outliers, residual and uncertainty plots).
+"""
+
+from __future__ import annotations
+
+import datetime
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.calibration.bundle import BundleResult, bundle_adjust
+from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
+from scanrig.calibration.observations import Observations
+from scanrig.calibration.uncertainty import Uncertainty, covariance, intrinsics_difference, projection_uncertainty
+from scanrig.errors import FileFormatError, InputError
+from scanrig.geometry.rig import Rig
+from scanrig.targets import Target
+
+#: Camera models a calibration may fit.
+CALIBRATION_MODELS = ("opencv4", "opencv5", "opencv8")
+#: Fewest views of one board (planes) per camera: two homographies fix fx, fy, cx, cy (zero skew).
+MIN_PLANES_PER_CAMERA = 2
+#: Fewest shots in each half for the odd/even cross-validation.
+MIN_SHOTS_PER_HALF = 3
+REPORT_DIR = "calibration_report"
+
+
+@dataclass
+class CrossValidation:
+    """Odd/even split: both halves calibrated alone, their projections compared per camera.
+
+    ``diff_rms_px``/``diff_max_px``: difference between the halves' intrinsics over the image
+    (pixel unprojected with one half at the working distance, projected with the other).
+    ``expected_rms_px``: what the full solve's uncertainty predicts for that difference (each
+    half has half the data, so ``2 x`` the full-data projection sigma).
+    """
+
+    diff_rms_px: dict
+    diff_max_px: dict
+    expected_rms_px: dict
+
+
+@dataclass
+class CalibrationResult:
+    """Everything a calibration produced."""
+
+    rig: Rig
+    bundle: BundleResult
+    uncertainty: Uncertainty
+    init: Initialisation
+    target: Target
+    working_distance_m: dict
+    projection_sigma_px: dict
+    cross_validation: CrossValidation | None = None
+    warnings: list = field(default_factory=list)
+    not_found: list = field(default_factory=list)
+
+    def camera_info(self) -> dict:
+        """Per-camera quality fields for ``rig.toml``."""
+        counts = np.bincount(self.bundle.obs.camera[self.bundle.inliers], minlength=len(self.rig))
+        return {name: {"rms_px": round(self.bundle.rms_px(c), 6),
+                       "params_std": [float(v) for v in self.uncertainty.params_std[name]],
+                       "n_observations": int(counts[c])}
+                for c, name in enumerate(self.rig.names)}
+
+
+def check_observations(obs: Observations, target: Target) -> None:
+    """Bad-input checks before any solve: every camera sees the target in enough views."""
+    board_idx = target.board_of(obs.point_id)
+    unknown = board_idx < 0
+    if np.any(unknown):
+        raise InputError(f"detections name point ids the target does not have, e.g. "
+                         f"{sorted(set(obs.point_id[unknown].tolist()))[:5]}; check target.toml")
+    key = (obs.camera * len(obs.shot_names) + obs.shot) * len(target.boards) + board_idx
+    ukey, n = np.unique(key, return_counts=True)
+    planes_cam = ukey[n >= MIN_POINTS_PER_PLANE] // (len(obs.shot_names) * len(target.boards))
+    per_camera = np.bincount(planes_cam, minlength=len(obs.camera_names))
+    for c, name in enumerate(obs.camera_names):
+        if not np.any(obs.camera == c):
+            raise InputError(f"camera {name!r}: the target was never found in its calibration images")
+        if per_camera[c] < MIN_PLANES_PER_CAMERA:
+            raise InputError(f"camera {name!r}: the target was found in {per_camera[c]} usable view(s); "
+                             f"at least {MIN_PLANES_PER_CAMERA} are needed (views of a board at different tilts)")
+
+
+def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
+              fixed_params: dict | None = None, cross_validate: bool = True) -> CalibrationResult:
+    """Calibrate every camera jointly from observations.
+
+    Parameters
+    ----------
+    obs : Observations
+    target : Target
+    model : str or dict
+        One of :data:`CALIBRATION_MODELS` for all cameras, or ``camera -> model``.
+    fixed_params : dict, optional
+        ``camera -> parameter names held at their initial value``.
+    cross_validate : bool
+        Also run the odd/even split (when each half has :data:`MIN_SHOTS_PER_HALF` shots).
+
+    Raises
+    ------
+    InputError
+        Too few views, a camera that never sees the target, a disconnected camera graph.
+    """
+    models = model if isinstance(model, dict) else {name: model for name in obs.camera_names}
+    for name in obs.camera_names:
+        if models.get(name) not in CALIBRATION_MODELS:
+            raise InputError(f"camera {name!r}: model must be one of {list(CALIBRATION_MODELS)}, "
+                             f"got {models.get(name)!r}")
+    check_observations(obs, target)
+    init = initialise(obs, target, models)
+    bundle = bundle_adjust(obs, target, init.cameras, init.world_from_target, init.reference_shot, fixed_params)
+    unc = covariance(bundle)
+    rig = Rig(bundle.state.cameras)
+    distance = _working_distances(bundle, target)
+    sigma_map = {name: projection_uncertainty(bundle, unc, c, distance[name])[1]
+                 for c, name in enumerate(rig.names)}
+    warnings = list(unc.warnings)
+    for cam_name, shot, reason in init.dropped_views:
+        warnings.append(f"view {cam_name}/{shot} left out of the initialisation: {reason}")
+    n_out = len(bundle.outliers)
+    if n_out > 0.05 * len(obs):
+        warnings.append(f"{n_out} of {len(obs)} detections rejected as outliers (> 5 %): check the detections")
+    result = CalibrationResult(rig, bundle, unc, init, target, distance, sigma_map, warnings=warnings)
+    if cross_validate:
+        result.cross_validation = _cross_validate(obs, target, models, fixed_params, result)
+    return result
+
+
+def _working_distances(bundle: BundleResult, target: Target) -> dict:
+    """Median distance (m) from each camera to the target points it observed."""
+    p_target, _ = target.lookup(bundle.obs.point_id)
+    out = {}
+    for c, cam in enumerate(bundle.state.cameras):
+        rows = np.flatnonzero((bundle.obs.camera == c) & bundle.inliers)
+        dist = []
+        for s in np.unique(bundle.obs.shot[rows]):
+            sel = rows[bundle.obs.shot[rows] == s]
+            p_world = bundle.state.world_from_target[s].apply(p_target[sel])
+            dist.append(np.linalg.norm(p_world - cam.center_world, axis=1))
+        out[cam.name] = float(np.median(np.concatenate(dist)))
+    return out
+
+
+def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult) -> CrossValidation | None:
+    halves = []
+    for parity in (0, 1):
+        shots = np.flatnonzero(np.arange(len(obs.shot_names)) % 2 == parity)
+        sub = obs.subset(np.isin(obs.shot, shots))
+        if len(np.unique(sub.shot)) < MIN_SHOTS_PER_HALF:
+            return None
+        try:
+            check_observations(sub, target)
+            init = initialise(sub, target, models)
+            halves.append(bundle_adjust(sub, target, init.cameras, init.world_from_target,
+                                        init.reference_shot, fixed_params).state.cameras)
+        except InputError:
+            return None
+    rms, worst, expected = {}, {}, {}
+    for c, name in enumerate(obs.camera_names):
+        _, diff = intrinsics_difference(halves[0][c], halves[1][c], full.working_distance_m[name])
+        rms[name] = float(np.sqrt(np.nanmean(diff ** 2)))
+        worst[name] = float(np.nanmax(diff))
+        expected[name] = float(2.0 * np.sqrt(np.nanmean(full.projection_sigma_px[name] ** 2)))
+    return CrossValidation(rms, worst, expected)
+
+
+def detect_session(session, target: Target, cameras: list[str] | None = None, progress=None):
+    """Detect the target in every calibration image of a session.
+
+    Returns
+    -------
+    obs : Observations
+    not_found : list of (camera, shot)
+        Images in which the target was not found.
+
+    Raises
+    ------
+    FileFormatError
+        An image whose size differs from the camera's other images, or an unreadable image.
+    """
+    from scanrig.calibration.detect import detect_target
+    from scanrig.io.session import read_image
+
+    cameras = cameras or session.camera_names("calibration")
+    frames = session.frames("calibration", cameras)
+    sizes: dict[str, tuple[int, int]] = {}
+    first: dict[str, Path] = {}
+    parts, not_found = [], []
+    jobs = [(stem, cam, path) for stem, by_cam in frames.items() for cam, path in by_cam.items()]
+    for stem, cam, path in jobs:
+        img = read_image(path)
+        size = (img.shape[1], img.shape[0])
+        if cam not in sizes:
+            sizes[cam], first[cam] = size, path
+        elif size != sizes[cam]:
+            raise FileFormatError(path, f"image is {size[0]}x{size[1]} but {first[cam].name} of camera "
+                                        f"{cam!r} is {sizes[cam][0]}x{sizes[cam][1]}; one camera, one image size")
+        det = detect_target(img, target)
+        if len(det.point_ids):
+            parts.append((cam, stem, det.point_ids, det.uv, det.weight))
+        else:
+            not_found.append((cam, stem))
+        if progress is not None:
+            progress()
+    missing = [c for c in cameras if c not in sizes]
+    if missing:
+        raise FileFormatError(session.root / "calibration", f"cameras {missing} have no calibration images")
+    return Observations.concatenate(parts, cameras, list(frames), sizes), not_found
+
+
+def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
+                      cross_validate: bool = True, plots: bool = True, command_line: str = "",
+                      progress_factory=None) -> CalibrationResult:
+    """Calibrate a session folder and write ``rig.toml`` and ``calibration_report/``.
+
+    Parameters
+    ----------
+    root : str or Path
+        Session folder (DESIGN.md §4).
+    model : str
+        Camera model for every camera (:data:`CALIBRATION_MODELS`).
+    corners_csv : path, optional
+        Use these detections (:mod:`scanrig.calibration.corners_csv`) instead of detecting;
+        image sizes are then read from the first calibration image of each camera.
+    cross_validate, plots : bool
+    command_line : str
+        Recorded in ``rig.toml``.
+    progress_factory : callable, optional
+        ``progress_factory(total) -> advance()`` for a progress display during detection.
+    """
+    from scanrig.calibration.corners_csv import read_corners_csv, write_corners_csv
+    from scanrig.calibration.summary import format_summary, write_outliers_csv
+    from scanrig.io.rig_file import save_rig
+    from scanrig.io.session import Session, read_image
+    from scanrig.targets import load_target
+
+    session = Session(Path(root))
+    target = load_target(session.target_path)
+    cameras = session.camera_names("calibration")
+    not_found: list = []
+    if corners_csv is not None:
+        sizes = {}
+        for cam in cameras:
+            paths = session.image_paths("calibration", cam)
+            if not paths:
+                raise FileFormatError(session.root / "calibration" / cam, "no calibration images (needed for the size)")
+            img = read_image(next(iter(paths.values())))
+            sizes[cam] = (img.shape[1], img.shape[0])
+        obs = read_corners_csv(corners_csv, sizes, cameras)
+    else:
+        n_images = sum(len(session.image_paths("calibration", c)) for c in cameras)
+        advance = progress_factory(n_images) if progress_factory else None
+        obs, not_found = detect_session(session, target, cameras, advance)
+    result = calibrate(obs, target, model, cross_validate=cross_validate)
+    result.not_found = not_found
+    report = session.root / REPORT_DIR
+    report.mkdir(exist_ok=True)
+    write_corners_csv(obs, report / "corners.csv")
+    write_outliers_csv(result, report / "outliers.csv")
+    summary = format_summary(result)
+    from scanrig.io.atomic import write_text_atomic
+
+    write_text_atomic(report / "summary.txt", summary)
+    if plots:
+        from scanrig.calibration.plots import write_plots
+
+        write_plots(result, report)
+    import scanrig
+
+    metadata = {
+        "created_by": f"scanrig {scanrig.__version__}",
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "command": command_line,
+        "target_kind": target.kind,
+        "rms_px": round(result.bundle.rms_px(), 6),
+        "sigma_px": round(result.bundle.sigma_px, 6),
+        "n_observations": int(result.bundle.inliers.sum()),
+        "n_outliers": len(result.bundle.outliers),
+        "world_frame": f"target frame at shot {obs.shot_names[result.init.reference_shot]!r}",
+    }
+    comments = [f"written by scanrig {scanrig.__version__} on {metadata['date']}: {command_line}",
+                f"RMS reprojection error {metadata['rms_px']} px over {metadata['n_observations']} points"]
+    save_rig(result.rig, session.rig_path, result.camera_info(), metadata, comments)
+    return result

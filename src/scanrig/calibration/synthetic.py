@@ -1,0 +1,157 @@
+"""Synthetic calibration observations with known truth, for tests and benchmarks.
+
+Cameras on a ring look at the origin; the target is posed near the origin; every target point
+that is in front of a camera, inside its image and seen from the printed side at less than
+:data:`MAX_VIEW_ANGLE_DEG` from the board normal is observed with Gaussian pixel noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanrig.calibration.observations import Observations
+from scanrig.geometry.camera import Camera
+from scanrig.geometry.transform import RigidTransform
+from scanrig.targets import Target
+
+#: Steepest view of a board (angle between the line of sight and the board normal) still detected.
+MAX_VIEW_ANGLE_DEG = 70.0
+
+
+@dataclass
+class SyntheticCalibration:
+    """Truth and observations of a simulated calibration."""
+
+    cameras: list[Camera]
+    world_from_target: list[RigidTransform]
+    obs: Observations
+    sigma_px: float
+
+
+def look_at(center_world: np.ndarray, target_world: np.ndarray, up=(0.0, 0.0, 1.0)) -> RigidTransform:
+    """``cam_from_world`` of a camera at ``center_world`` looking at ``target_world`` (y down)."""
+    z = np.asarray(target_world, float) - np.asarray(center_world, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])          # rows: camera axes in world coordinates
+    return RigidTransform(R, -R @ np.asarray(center_world, float))
+
+
+def ring_cameras(n_cameras: int, distance_m: float = 0.8, elevation_deg: float = 30.0, spread_deg: float = 30.0,
+                 size=(1280, 1024), focal_px: float = 1400.0, model: str = "opencv5",
+                 rng: np.random.Generator | None = None, center_m=(0.0, 0.0, 0.0)) -> list[Camera]:
+    """Cameras on an arc around the origin, ``spread_deg`` apart, with mild distortion.
+
+    The arc is centred on azimuth 45° (between the target's +x and +y axes) at ``elevation_deg``
+    above the xy plane around ``center_m``, all looking at ``center_m``: a cube at the origin
+    shows each camera three faces. A planar board (printed side facing -z) is seen from a
+    negative elevation. ``rng`` perturbs the intrinsics (so cameras differ); None gives
+    identical intrinsics.
+    """
+    w, h = size
+    cams = []
+    el = np.deg2rad(elevation_deg)
+    for k in range(n_cameras):
+        az = np.deg2rad(45.0 + spread_deg * (k - (n_cameras - 1) / 2))
+        centre = np.asarray(center_m, float) + distance_m * np.array(
+            [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        jitter = rng.normal(size=4) if rng is not None else np.zeros(4)
+        base = [focal_px * (1 + 0.02 * jitter[0]), focal_px * (1 + 0.02 * jitter[0]) * 1.001,
+                w / 2 + 8 * jitter[1], h / 2 + 8 * jitter[2]]
+        dist = {"opencv4": [-0.12, 0.08, 2e-4, -1e-4], "opencv5": [-0.12, 0.08, 2e-4, -1e-4, -0.02],
+                "opencv8": [-0.12, 0.08, 2e-4, -1e-4, -0.02, 0.01, 0.005, 0.002]}[model]
+        cams.append(Camera(f"cam{k}", model, np.array(base + dist), w, h, look_at(centre, np.asarray(center_m, float))))
+    return cams
+
+
+def random_target_poses(n_shots: int, rng: np.random.Generator, max_tilt_deg: float = 35.0,
+                        max_shift_m: float = 0.1) -> list[RigidTransform]:
+    """Target poses near the origin: shot 0 is the identity (the world frame), others random."""
+    from scipy.spatial.transform import Rotation
+
+    poses = [RigidTransform.identity()]
+    for _ in range(n_shots - 1):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = np.deg2rad(rng.uniform(0.3, 1.0) * max_tilt_deg)
+        poses.append(RigidTransform(Rotation.from_rotvec(axis * angle).as_matrix(),
+                                    rng.uniform(-max_shift_m, max_shift_m, size=3)))
+    return poses
+
+
+def observe(cameras: list[Camera], target: Target, world_from_target: list[RigidTransform],
+            sigma_px: float, rng: np.random.Generator) -> Observations:
+    """Noisy observations of every visible target point (see the module docstring)."""
+    parts = []
+    shot_names = [f"{s:03d}" for s in range(len(world_from_target))]
+    normals_target = np.concatenate([np.tile(b.target_from_board.R[:, 2], (len(b.point_ids), 1))
+                                     for b in target.boards])
+    cos_max = np.cos(np.deg2rad(MAX_VIEW_ANGLE_DEG))
+    for s, pose in enumerate(world_from_target):
+        p_world = pose.apply(target.points_target)
+        inward_world = normals_target @ pose.R.T          # board z (into the board), world frame
+        for cam in cameras:
+            q = cam.project(p_world)
+            sight = p_world - cam.center_world
+            sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+            facing = np.sum(sight * inward_world, axis=1) > cos_max
+            inside = np.all(np.isfinite(q), axis=1) & (q[:, 0] > 0) & (q[:, 1] > 0) \
+                & (q[:, 0] < cam.width - 1) & (q[:, 1] < cam.height - 1)
+            keep = facing & inside
+            if np.count_nonzero(keep) == 0:
+                continue
+            noisy = q[keep] + rng.normal(scale=sigma_px, size=(np.count_nonzero(keep), 2))
+            parts.append((cam.name, shot_names[s], target.point_ids[keep], noisy, np.ones(np.count_nonzero(keep))))
+    sizes = {cam.name: (cam.width, cam.height) for cam in cameras}
+    return Observations.concatenate(parts, [c.name for c in cameras], shot_names, sizes)
+
+
+def simulate(cameras: list[Camera], target: Target, n_shots: int, sigma_px: float,
+             rng: np.random.Generator, **pose_options) -> SyntheticCalibration:
+    """Random target poses (shot 0 = world) and noisy observations of them."""
+    poses = random_target_poses(n_shots, rng, **pose_options)
+    return SyntheticCalibration(cameras, poses, observe(cameras, target, poses, sigma_px, rng), sigma_px)
+
+
+def render_board(board, camera: Camera, cam_from_board: RigidTransform, blur_px: float, noise_dn: float,
+                 rng: np.random.Generator, supersample: int = 4, black_dn: float = 30.0,
+                 white_dn: float = 220.0) -> np.ndarray:
+    """Render a board as the camera sees it: exact geometry, area sampling, blur, noise.
+
+    Each pixel averages ``supersample²`` rays intersected with the board plane (true lens
+    model, so the corners' truth is ``camera.project_cam(cam_from_board.apply(points_board))``);
+    then a Gaussian blur of ``blur_px`` (sigma) and Gaussian noise of ``noise_dn`` are applied
+    and the result is rounded to 8 bits. Off the board the paper is white.
+
+    Returns
+    -------
+    ndarray of shape (H, W), uint8
+    """
+    import cv2
+
+    w, h = camera.width, camera.height
+    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+    u = (np.arange(w)[:, None] + offsets[None, :]).ravel()
+    v = (np.arange(h)[:, None] + offsets[None, :]).ravel()
+    uu, vv = np.meshgrid(u, v)
+    cam0 = camera.with_pose(RigidTransform.identity())
+    xy, ok = cam0.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    # Plane z_board = 0 in camera frame: normal R[:, 2], passing through t.
+    normal, origin = cam_from_board.R[:, 2], cam_from_board.t
+    depth = (origin @ normal) / (rays @ normal)
+    hit_cam = rays * depth[:, None]
+    hit_board = (hit_cam - origin) @ cam_from_board.R
+    refl = np.ones(len(rays))
+    good = ok & (depth > 0)
+    refl[good] = board.reflectance(hit_board[good, :2])
+    img = refl.reshape(h, supersample, w, supersample).mean(axis=(1, 3))
+    img = black_dn + (white_dn - black_dn) * img
+    if blur_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_px)
+    img = img + rng.normal(scale=noise_dn, size=img.shape) if noise_dn > 0 else img
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)

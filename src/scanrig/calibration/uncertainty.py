@@ -1,0 +1,217 @@
+"""How sure the calibration is: parameter covariance, projection uncertainty, degeneracy warnings.
+
+Covariance of the solved parameters is ``sigma² (JᵀJ)⁻¹`` with the weighted Jacobian at the
+solution and ``sigma`` the measured residual scale (so it already includes the real detection
+noise). The gauge is fixed (target pose of the reference shot = world), so ``JᵀJ`` is regular
+unless the data cannot determine some parameter; then the near-null directions are reported and
+the pseudo-inverse is used.
+
+A parameter is *poorly determined* when one standard deviation of it moves some pixel of its
+camera's image by more than :data:`POORLY_DETERMINED_PX` — a unit-free test that works alike for
+focal lengths, principal points and distortion coefficients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanrig.calibration.bundle import BundleResult
+from scanrig.geometry.camera import Camera
+from scanrig.geometry.transform import RigidTransform
+
+#: One sigma of an intrinsic parameter moving some image pixel by more than this is reported.
+POORLY_DETERMINED_PX = 0.5
+#: Relative eigenvalue of the scaled (unit-diagonal) normal matrix below which a direction is
+#: unobservable (float64 round-off on JᵀJ is ~1e-16 relative; 1e-12 leaves four decades of margin).
+SINGULAR_RTOL = 1e-12
+#: Pixels per image side sampled for projection-uncertainty maps.
+MAP_SAMPLES = (32, 24)
+
+
+@dataclass
+class Uncertainty:
+    """Covariance of a bundle-adjustment solution, by camera.
+
+    Attributes
+    ----------
+    covariance : ndarray of shape (n, n)
+        Of the parameter vector (layout of the :class:`BundleResult`).
+    params_std : dict
+        ``camera -> (n_params,)`` standard deviation of each intrinsic parameter (0 when fixed).
+    center_std_m : dict
+        ``camera -> (3,)`` standard deviation of the camera centre along world x, y, z, metres.
+    rotation_std_deg : dict
+        ``camera -> float`` RMS standard deviation of the rotation vector components, degrees.
+    warnings : list of str
+        Parameters the data cannot determine, and unobservable directions.
+    """
+
+    covariance: np.ndarray
+    params_std: dict
+    center_std_m: dict
+    rotation_std_deg: dict
+    warnings: list
+
+
+def covariance(result: BundleResult) -> Uncertainty:
+    """Covariance of every solved parameter (see the module docstring)."""
+    from scanrig.calibration.lm import normal_equations, solve_spd
+
+    A, _ = normal_equations(result.jacobian, np.zeros(result.jacobian.shape[0]))
+    scale = np.sqrt(np.maximum(A.diagonal(), 1e-300))
+    A_scaled = (A.multiply(1.0 / scale[:, None]).multiply(1.0 / scale[None, :])).tocsc()
+    names = _parameter_names(result)
+    warnings = []
+    try:
+        inv_scaled = solve_spd(A_scaled, np.eye(A.shape[0]))
+        singular_params = np.flatnonzero(np.diag(inv_scaled) > 1.0 / SINGULAR_RTOL)
+    except RuntimeError:
+        inv_scaled, singular_params = None, np.arange(0)
+    if inv_scaled is None or len(singular_params):
+        # Rank-deficient: name the parameters of the null directions, use the pseudo-inverse.
+        evals, evecs = np.linalg.eigh(A_scaled.toarray())
+        singular = evals < SINGULAR_RTOL * evals.max()
+        inv_scaled = (evecs * np.where(singular, 0.0, 1.0 / np.where(singular, 1.0, evals))) @ evecs.T
+        for k in np.flatnonzero(singular):
+            top = np.argsort(-np.abs(evecs[:, k]))[:3]
+            warnings.append("the data cannot determine a combination of " + ", ".join(names[i] for i in top)
+                            + "; add views with other tilts and positions of the target")
+    cov = inv_scaled / scale[:, None] / scale[None, :] * result.sigma_px ** 2
+    layout, state = result.layout, result.state
+    params_std, center_std, rot_std = {}, {}, {}
+    for c, cam in enumerate(state.cameras):
+        index = layout.intrinsics[c]
+        std = np.zeros(len(cam.params))
+        free = index >= 0
+        std[free] = np.sqrt(np.maximum(np.diag(cov)[index[free]], 0.0))
+        params_std[cam.name] = std
+        effect = _pixel_effect(cam)
+        for k in np.flatnonzero(free):
+            moved = std[k] * effect[k]
+            if moved > POORLY_DETERMINED_PX:
+                warnings.append(f"camera {cam.name!r}: {cam.param_names[k]} is poorly determined "
+                                f"(1 sigma = {std[k]:.3g} moves the image by up to {moved:.2g} px); "
+                                "add views covering the image corners, or use a simpler model")
+        pose = layout.camera_pose[c]
+        if pose is None:
+            center_std[cam.name] = np.zeros(3)
+            rot_std[cam.name] = 0.0
+            continue
+        C = cov[pose, pose]
+        J_center = center_jacobian(cam.cam_from_world)
+        center_std[cam.name] = np.sqrt(np.maximum(np.diag(J_center @ C @ J_center.T), 0.0))
+        rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(C[:3, :3]) / 3.0)))
+    return Uncertainty(cov, params_std, center_std, rot_std, warnings)
+
+
+def _parameter_names(result: BundleResult) -> list[str]:
+    names = [""] * result.layout.size
+    for c, cam in enumerate(result.state.cameras):
+        for k, i in enumerate(result.layout.intrinsics[c]):
+            if i >= 0:
+                names[i] = f"{cam.name}.{cam.param_names[k]}"
+        pose = result.layout.camera_pose[c]
+        if pose is not None:
+            for k, label in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
+                names[pose.start + k] = f"{cam.name}.{label}"
+    for s, pose in enumerate(result.layout.shot_pose):
+        if pose is not None:
+            for k, label in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
+                names[pose.start + k] = f"shot {result.obs.shot_names[s]}.{label}"
+    return names
+
+
+def _image_grid(cam: Camera, samples=MAP_SAMPLES) -> np.ndarray:
+    """(n, 2) pixels on a regular grid spanning the whole image."""
+    u = np.linspace(0, cam.width - 1, samples[0])
+    v = np.linspace(0, cam.height - 1, samples[1])
+    uu, vv = np.meshgrid(u, v)
+    return np.column_stack([uu.ravel(), vv.ravel()])
+
+
+def _grid_points_cam(cam: Camera, depth_m: float, samples=MAP_SAMPLES):
+    """Pixels of the image grid and their points at ``depth_m`` in the camera frame (NaN where the
+    distortion cannot be inverted)."""
+    q = _image_grid(cam, samples)
+    xy, ok = cam.unproject(q)
+    p = np.column_stack([xy, np.ones(len(xy))]) * depth_m
+    p[~ok] = np.nan
+    return q, p
+
+
+def _pixel_effect(cam: Camera) -> np.ndarray:
+    """(n_params,) largest pixel displacement over the image per unit change of each parameter."""
+    at_origin = cam.with_pose(RigidTransform.identity())
+    _, p = _grid_points_cam(at_origin, 1.0, (9, 7))
+    p = p[np.all(np.isfinite(p), axis=1)]
+    _, _, _, J_intr = at_origin.project_with_jacobians(p)
+    return np.nanmax(np.linalg.norm(J_intr, axis=1), axis=0)
+
+
+def center_jacobian(cam_from_world: RigidTransform) -> np.ndarray:
+    """(3, 6) derivative of the centre ``-Rᵀ t`` with respect to (rvec, tvec), numerically.
+
+    Central differences with a step of 1e-7 (rad or m): the truncation error is ~1e-14, far
+    below any covariance it is used for.
+    """
+    x0 = np.concatenate([cam_from_world.rvec, cam_from_world.t])
+    step = 1e-7
+    J = np.zeros((3, 6))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = step
+        plus = RigidTransform.from_rvec_tvec((x0 + dx)[:3], (x0 + dx)[3:]).inverse().t
+        minus = RigidTransform.from_rvec_tvec((x0 - dx)[:3], (x0 - dx)[3:]).inverse().t
+        J[:, k] = (plus - minus) / (2 * step)
+    return J
+
+
+def projection_uncertainty(result: BundleResult, unc: Uncertainty, camera: int, depth_m: float,
+                           samples=MAP_SAMPLES):
+    """Worst-direction 1-sigma uncertainty of projecting world points, over one camera's image.
+
+    For each pixel of a grid, the world point seen there at ``depth_m`` is projected with the
+    camera's solved intrinsics and pose; the joint covariance of those parameters is propagated
+    to the pixel and the larger axis of the 2x2 covariance is reported.
+
+    Returns
+    -------
+    q : ndarray of shape (n, 2)
+        Grid pixels.
+    sigma_px : ndarray of shape (n,)
+        Worst-direction standard deviation, pixels (NaN where the model cannot be inverted).
+    """
+    cam = result.state.cameras[camera]
+    layout = result.layout
+    q, p_cam = _grid_points_cam(cam, depth_m, samples)
+    p_world = cam.cam_from_world.inverse().apply(np.nan_to_num(p_cam))
+    _, _, J_pose, J_intr = cam.project_with_jacobians(p_world)
+    index = layout.intrinsics[camera]
+    cols = list(index[index >= 0])
+    J = J_intr[:, :, index >= 0]
+    if layout.camera_pose[camera] is not None:
+        cols += list(range(layout.camera_pose[camera].start, layout.camera_pose[camera].stop))
+        J = np.concatenate([J, J_pose], axis=2)
+    C = unc.covariance[np.ix_(cols, cols)]
+    S = J @ C @ np.swapaxes(J, 1, 2)
+    sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
+    sigma[~np.all(np.isfinite(p_cam), axis=1)] = np.nan
+    return q, sigma
+
+
+def intrinsics_difference(cam_a: Camera, cam_b: Camera, depth_m: float, samples=MAP_SAMPLES):
+    """Pixel difference between two calibrations of one camera over its image.
+
+    Each grid pixel is unprojected with ``cam_a`` to ``depth_m`` in the camera frame and
+    projected with ``cam_b`` (poses ignored).
+
+    Returns
+    -------
+    q : ndarray of shape (n, 2)
+    diff_px : ndarray of shape (n,)
+        Length of the difference, pixels (NaN where ``cam_a`` cannot be inverted).
+    """
+    q, p_cam = _grid_points_cam(cam_a, depth_m, samples)
+    return q, np.linalg.norm(cam_b.project_cam(np.nan_to_num(p_cam, nan=-1.0)) - q, axis=1)

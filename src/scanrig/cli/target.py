@@ -1,0 +1,31 @@
+"""``scanrig target``: print-ready files for a calibration target."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def command(
+    action: Annotated[str, typer.Argument(help="What to do: 'print' writes true-scale SVG files.")],
+    target_file: Annotated[Path, typer.Argument(help="The target.toml to read.")],
+    out: Annotated[Path, typer.Option("--out", help="Folder for the print files (created if absent).")] = Path("."),
+):
+    """Write print-ready SVG files (true scale, millimetres) for a target.toml.
+
+    Planar targets give board.svg; the cube gives face0.svg .. face5.svg and cube_net.svg.
+    Print at 100 % and check the 50 mm scale bar with a ruler.
+
+    Example: scanrig target print SESSION/target.toml --out prints
+    """
+    from scanrig.errors import InputError
+    from scanrig.targets import load_target
+    from scanrig.targets.print_files import write_print_files
+
+    if action != "print":
+        raise InputError(f"action must be 'print', got {action!r}")
+    target = load_target(target_file)
+    for path in write_print_files(target, out):
+        typer.echo(str(path))
