@@ -1,0 +1,169 @@
+"""Calibration shots: printed targets (cube, chessboard, ChArUco) in random poses, rendered.
+
+Each board of a :class:`scanrig.targets.Target` becomes a flat rectangle whose albedo is the
+board's own printed reflectance function (black ink on white paper), sampled exactly at every
+ray hit; edges are pixel-integrated by the renderer's sub-pixel supersampling. The cube's six
+boards form its closed surface. Poses are random but keep the target in view of at least two
+cameras (a pose may cut the target at the image border in some cameras).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import EstimationError, InputError
+from scanrig.geometry import Rig, RigidTransform
+from scanrig.io.atomic import write_text_atomic
+from scanrig.io.session import write_image
+from scanrig.sim import primitives
+from scanrig.sim.materials import Material
+from scanrig.sim.pixel_rays import PixelRayTable
+from scanrig.sim.render import CameraView
+from scanrig.sim.scene import Scene, SceneObject
+
+#: Reflectance of paper and ink.
+PAPER_ALBEDO = 0.85
+INK_ALBEDO = 0.04
+#: Fraction of the full well reached by white paper under the scene's room light.
+PAPER_FILL = 0.7
+#: Sub-pixel samples per axis at edges in calibration shots (corner accuracy).
+CALIBRATION_SUPERSAMPLING = 4
+#: Pose attempts before giving up.
+_MAX_TRIES = 500
+
+
+@dataclass(frozen=True)
+class PrintedMaterial(Material):
+    """Matte paper printed with a board's pattern."""
+
+    board: object = None
+    board_from_world: RigidTransform | None = None
+
+    def albedo_at(self, p_world: np.ndarray) -> np.ndarray:
+        xy = self.board_from_world.apply(p_world)[:, :2]
+        return INK_ALBEDO + (PAPER_ALBEDO - INK_ALBEDO) * self.board.reflectance(xy)
+
+
+def default_target(kind: str):
+    """The target used by simulated sessions: ``cube`` (20 cm ChArUco cube), ``chessboard`` or ``charuco``."""
+    from scanrig import targets
+
+    makers = {"cube": lambda: targets.cube(edge_m=0.2),
+              "chessboard": lambda: targets.chessboard(inner_corners=(9, 6), square_m=0.03),
+              "charuco": lambda: targets.charuco(squares=(7, 5), square_m=0.04, marker_m=0.03)}
+    if kind not in makers:
+        raise InputError(f"target kind must be one of {sorted(makers)}, got {kind!r}")
+    return makers[kind]()
+
+
+def target_scene(target, world_from_target: RigidTransform, room: Scene) -> Scene:
+    """A scene holding only the target at a pose, lit like ``room``."""
+    objects = []
+    for board in target.boards:
+        w, h = board.size_m
+        rect = primitives.plane((w, h))
+        world_from_board = world_from_target @ board.target_from_board
+        m = world_from_board.as_matrix() @ np.array([[1, 0, 0, w / 2], [0, 1, 0, h / 2], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+        rect.apply_transform(m)
+        mat = PrintedMaterial(board.name, "matte", albedo=PAPER_ALBEDO, board=board,
+                              board_from_world=world_from_board.inverse())
+        objects.append(SceneObject(board.name, rect, mat))
+    return replace(room, name=f"{room.name}+target", objects=tuple(objects))
+
+
+def calibration_sensor(room: Scene):
+    """The scene's sensor with an exposure that puts white paper at PAPER_FILL of the full well."""
+    s = room.sensor
+    light = room.lighting
+    radiance = PAPER_ALBEDO * (light.ambient_W_m2 + light.lamp_W_m2) / np.pi
+    exposure = s.exposure_s * PAPER_FILL * s.full_well_e / (radiance * s.e_per_radiance)
+    return replace(s.with_exposure(exposure), supersampling=max(s.supersampling, CALIBRATION_SUPERSAMPLING))
+
+
+def random_pose(target, rig: Rig, center_m, radius_m: float, rng: np.random.Generator) -> RigidTransform:
+    """A random ``world_from_target`` whose points are seen (in front, in the image) by >= 2 cameras.
+
+    Raises
+    ------
+    EstimationError
+        If no such pose is found (cameras do not share a view of the region).
+    """
+    from scipy.spatial.transform import Rotation
+
+    center = np.asarray(center_m, dtype=np.float64)
+    centres = np.array([c.center_world for c in rig.cameras])
+    towards_cams = centres.mean(axis=0) - center
+    towards_cams /= np.linalg.norm(towards_cams)
+    pts = target.points_target
+    for _ in range(_MAX_TRIES):
+        if target.is_planar:
+            # board z (into the print) points away from the cameras, tilted up to 40 degrees
+            z = -towards_cams
+            tilt = Rotation.from_rotvec(rng.normal(size=3) * np.radians(20))
+            base = Rotation.align_vectors([z], [[0.0, 0.0, 1.0]])[0]
+            R = (tilt * base * Rotation.from_rotvec([0, 0, rng.uniform(-np.pi, np.pi)])).as_matrix()
+        else:
+            R = Rotation.random(random_state=rng).as_matrix()
+        t = center + rng.uniform(-0.5, 0.5, size=3) * radius_m - R @ pts.mean(axis=0)
+        pose = RigidTransform(R, t)
+        if _n_cameras_seeing(target, pose, rig) >= 2:
+            return pose
+    raise EstimationError("could not place the calibration target in view of two cameras; "
+                          "check that the cameras look at the scene's center_m")
+
+
+def _n_cameras_seeing(target, world_from_target: RigidTransform, rig: Rig) -> int:
+    """Cameras that see at least half of the target points facing them inside the image."""
+    n = 0
+    for cam in rig.cameras:
+        seen = 0
+        for board in target.boards:
+            world_from_board = world_from_target @ board.target_from_board
+            p = world_from_board.apply(board.points_board)
+            facing = (cam.center_world - world_from_board.t) @ world_from_board.R[:, 2] < 0
+            if not facing:
+                continue
+            q = cam.project(p)
+            inside = np.isfinite(q).all(1) & (q[:, 0] >= 0) & (q[:, 1] >= 0)
+            inside &= (q[:, 0] <= cam.width - 1) & (q[:, 1] <= cam.height - 1)
+            seen += int(inside.sum())
+        n += seen >= 0.5 * len(target.boards[0].points_board)
+    return n
+
+
+def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kind: str,
+                      rng: np.random.Generator, workers: int | None = None, progress=None) -> None:
+    """Write ``target.toml``, ``calibration/<camera>/<shot>.png`` and ``truth/target_poses.csv``.
+
+    Poses are drawn from ``rng`` in order; each shot's noise has its own spawned generator.
+    """
+    from scanrig.sim.parallel import run_indexed
+    from scanrig.targets import save_target
+
+    target = default_target(target_kind)
+    save_target(target, out / "target.toml")
+    sensor = calibration_sensor(room)
+    poses = [random_pose(target, rig, room.center_m, room.radius_m, rng) for _ in range(n_shots)]
+    shot_rngs = rng.spawn(n_shots)
+    stems = [f"{i:03d}" for i in range(n_shots)]
+    tables = [PixelRayTable(cam) for cam in rig.cameras]
+    for table in tables:
+        table.xy  # noqa: B018 - solve each camera's rays once, before forking
+    for name in rig.names:
+        (out / "calibration" / name).mkdir(parents=True, exist_ok=True)
+
+    def render_shot(i: int) -> None:
+        scene = target_scene(target, poses[i], room)
+        for cam, table in zip(rig.cameras, tables):
+            image = sensor.expose(CameraView(cam, scene, sensor, ray_table=table).background_e, shot_rngs[i])
+            write_image(out / "calibration" / cam.name / f"{stems[i]}.png", image)
+
+    report = (lambda done: progress("calibration", done, n_shots)) if progress else None
+    run_indexed(render_shot, n_shots, workers, report)
+    lines = ["shot,r11,r12,r13,r21,r22,r23,r31,r32,r33,tx,ty,tz"]
+    for stem, pose in zip(stems, poses):
+        lines.append(",".join([stem, *(repr(float(v)) for v in pose.R.ravel()), *(repr(float(v)) for v in pose.t)]))
+    write_text_atomic(out / "truth" / "target_poses.csv", "\n".join(lines) + "\n")

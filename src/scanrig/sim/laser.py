@@ -1,0 +1,393 @@
+"""The laser: Gaussian beams and light sheets, their traces on the scene, and secondary reflections.
+
+Physical model
+--------------
+* **Spot**: a Gaussian beam of power ``P``; at distance ``z`` along its axis its 1/e² radius is
+  ``w(z) = w0 sqrt(1 + ((z - z_focus) / z_R)²)`` with Rayleigh range ``z_R = pi w0² / (M² lambda)``;
+  the irradiance across the beam is ``2 P / (pi w²) exp(-2 rho² / w²)`` (``rho`` = distance from
+  the axis).
+* **Stripe**: a plane of light fanned uniformly over ``±fan_half_angle`` about its central
+  direction; across the plane the profile is Gaussian with the same ``w(r)`` law (``r`` = distance
+  from the head); along it the power per radian is ``P / (2 half_angle)``, spreading as ``1/r``.
+* A surface with unit normal ``n`` receives ``E = I * cos(incidence)``; points that cannot see
+  the source along the light's path are shadowed (exact, by casting a ray).
+* **Secondary reflections**: where the beam (or a fan sample of the sheet) hits a shiny
+  material, a fraction ``specular`` of its power is reflected about the shading normal as a new
+  Gaussian beamlet that starts at the hit with the footprint's radius and diverges with the
+  lobe's 1/e² half-angle ``2 * roughness_rad``; where it lands is a secondary trace. One bounce
+  only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanrig.errors import InputError
+
+#: Offset of secondary ray origins off the surface, metres (well above float32 hit noise).
+SURFACE_EPS_M = 1e-5
+#: Footprint extent used for render windows, in 1/e² radii (exp(-2·3²) ≈ 1.5e-8 of the peak).
+FOOTPRINT_RADII = 3.0
+#: Smallest cosine of incidence used to bound footprint elongation at grazing incidence.
+MIN_COS_FOOTPRINT = 0.1
+#: Beamlet sets up to this size are evaluated densely; larger ones only at their nearest landings.
+_MAX_DENSE_BEAMS = 8
+_MAX_NEIGHBOUR_BEAMS = 24
+#: Fan samples cast per stripe frame (render windows, secondary beamlets) and written to truth.
+N_FAN_SAMPLES = 2048
+N_FAN_TRUTH = 512
+
+
+@dataclass(frozen=True)
+class BeamPose:
+    """Where the positioner points the laser (world frame, metres); duck-types ``scanrig.scan.Beam``.
+
+    Parameters
+    ----------
+    origin : (3,) float
+        Exit point of the beam (spot) or apex of the fan (stripe).
+    direction : (3,) float
+        Unit central direction.
+    fan_axis : (3,) float or None
+        Stripe only: unit vector ⟂ direction spanning the light plane.
+    """
+
+    origin: np.ndarray
+    direction: np.ndarray
+    fan_axis: np.ndarray | None = None
+
+    @classmethod
+    def from_any(cls, beam) -> BeamPose:
+        """Normalise any object with ``origin``, ``direction`` and optional ``fan_axis``."""
+        try:
+            origin = np.asarray(beam.origin, dtype=np.float64).reshape(3)
+            direction = np.asarray(beam.direction, dtype=np.float64).reshape(3)
+            fan = getattr(beam, "fan_axis", None)
+            fan = None if fan is None else np.asarray(fan, dtype=np.float64).reshape(3)
+        except (AttributeError, ValueError, TypeError) as exc:
+            raise InputError(f"beam must have origin (3,), direction (3,) and optional fan_axis (3,): {exc}") from None
+        direction = direction / np.linalg.norm(direction)
+        if fan is not None:
+            fan = fan - (fan @ direction) * direction
+            if np.linalg.norm(fan) < 1e-9:
+                raise InputError("beam fan_axis must not be parallel to direction")
+            fan = fan / np.linalg.norm(fan)
+        return cls(origin, direction, fan)
+
+
+@dataclass(frozen=True)
+class LaserSpec:
+    """The laser head: position of the positioner and beam optics.
+
+    Parameters
+    ----------
+    head_m : (3,) float
+        Pivot of the pan-tilt positioner, world metres.
+    power_W : float
+        Optical power of the spot laser.
+    stripe_power_W : float
+        Optical power of the line laser (spread over the whole fan, so typically much higher).
+    waist_m : float
+        1/e² radius of the beam waist (spot) or half-thickness of the sheet at its waist.
+    focus_m : float
+        Distance from the head to the waist.
+    m2 : float
+        Beam quality factor M² (>= 1).
+    wavelength_m : float
+    fan_half_angle_deg : float
+        Stripe: half opening angle of the fan.
+    """
+
+    head_m: tuple = (0.3, -0.75, 0.75)
+    power_W: float = 3e-4
+    stripe_power_W: float = 3e-2
+    waist_m: float = 2.5e-4
+    focus_m: float = 1.1
+    m2: float = 1.2
+    wavelength_m: float = 650e-9
+    fan_half_angle_deg: float = 20.0
+
+    def __post_init__(self):
+        for name in ("power_W", "stripe_power_W", "waist_m", "focus_m", "wavelength_m", "fan_half_angle_deg"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"laser {name} must be positive, got {getattr(self, name)!r}")
+        if self.m2 < 1:
+            raise InputError(f"laser m2 must be >= 1, got {self.m2!r}")
+
+    @property
+    def rayleigh_m(self) -> float:
+        """Rayleigh range ``pi w0² / (M² lambda)``, metres."""
+        return np.pi * self.waist_m**2 / (self.m2 * self.wavelength_m)
+
+
+@dataclass(frozen=True)
+class GaussianBeams:
+    """A set of ``M`` Gaussian beams (one primary spot, or secondary beamlets), arrays of length M."""
+
+    origin: np.ndarray          # (M, 3)
+    direction: np.ndarray       # (M, 3) unit
+    waist_m: np.ndarray         # (M,)
+    focus_m: np.ndarray         # (M,) distance from origin to waist
+    rayleigh_m: np.ndarray      # (M,)
+    power_W: np.ndarray         # (M,)
+    #: (M, 3) normal of the surface a secondary beamlet leaves (None for the laser head): shadow
+    #: rays stop at that surface's tangent plane, since the beamlet is emitted by its whole footprint.
+    emitter_normal: np.ndarray | None = None
+    #: (M, 3) where each beamlet lands and (M,) how far its light reaches around that point: many
+    #: beamlets (a reflected stripe) are then evaluated only near where they land (k-d tree).
+    landing: np.ndarray | None = None
+    reach_m: np.ndarray | None = None
+
+    def _candidates(self, x: np.ndarray):
+        """Beam indices ``(N, k)`` worth evaluating at each point, with a validity mask."""
+        m = len(self.power_W)
+        if self.landing is None or m <= _MAX_DENSE_BEAMS:
+            return np.broadcast_to(np.arange(m), (len(x), m)), np.ones((len(x), m), dtype=bool)
+        from scipy.spatial import cKDTree
+
+        k = min(m, _MAX_NEIGHBOUR_BEAMS)
+        dist, idx = cKDTree(self.landing).query(x, k=k, distance_upper_bound=float(self.reach_m.max()))
+        valid = idx < m
+        idx = np.where(valid, idx, 0)
+        return idx, valid & (dist <= self.reach_m[idx])
+
+    def radius(self, z: np.ndarray, idx=slice(None)) -> np.ndarray:
+        """1/e² radius at distance ``z`` along the axis (broadcast over beams ``idx``)."""
+        return self.waist_m[idx] * np.sqrt(1.0 + ((z - self.focus_m[idx]) / self.rayleigh_m[idx]) ** 2)
+
+    def evaluate(self, x: np.ndarray):
+        """Irradiance across the beams at points, summed over beams.
+
+        Parameters
+        ----------
+        x : ndarray of shape (N, 3)
+
+        Returns
+        -------
+        intensity : ndarray of shape (N,)
+            W/m² on a surface perpendicular to the propagation.
+        propagation : ndarray of shape (N, 3)
+            Unit propagation direction of the dominant beam at each point.
+        path : ndarray of shape (N,)
+            Distance back along the dominant beam's axis to its source (the laser head's exit
+            plane, or the emitting surface's tangent plane): the shadow test length.
+        """
+        n, m = len(x), len(self.power_W)
+        idx, valid = self._candidates(x)
+        total = np.zeros(n)
+        arg = np.zeros(n, dtype=np.int64)
+        path = np.zeros(n)
+        chunk = max(1, (1 << 22) // idx.shape[1])
+        for s in range(0, n, chunk):
+            b = idx[s:s + chunk]                                          # (n, k) beam indices
+            rel = x[s:s + chunk, None, :] - self.origin[b]                # (n, k, 3)
+            z = np.einsum("nkj,nkj->nk", rel, self.direction[b])
+            rho2 = np.einsum("nkj,nkj->nk", rel, rel) - z * z
+            w = self.radius(z, b)
+            inten = 2 * self.power_W[b] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
+            inten[(z <= 0) | ~valid[s:s + chunk]] = 0.0
+            total[s:s + chunk] = inten.sum(axis=1)
+            a = inten.argmax(axis=1)
+            rows = np.arange(len(a))
+            arg[s:s + chunk] = b[rows, a]
+            path[s:s + chunk] = z[rows, a]
+        if self.emitter_normal is not None:
+            n_e = self.emitter_normal[arg]
+            path = np.einsum("ij,ij->i", x - self.origin[arg], n_e) / np.einsum("ij,ij->i", self.direction[arg], n_e)
+        return total, self.direction[arg], path
+
+
+@dataclass(frozen=True)
+class LightSheet:
+    """A fan-shaped plane of light with a Gaussian thickness profile."""
+
+    origin: np.ndarray
+    direction: np.ndarray
+    fan_axis: np.ndarray
+    half_angle_rad: float
+    waist_m: float
+    focus_m: float
+    rayleigh_m: float
+    power_W: float
+
+    def radius(self, r: np.ndarray) -> np.ndarray:
+        return self.waist_m * np.sqrt(1.0 + ((r - self.focus_m) / self.rayleigh_m) ** 2)
+
+    def evaluate(self, x: np.ndarray):
+        """Irradiance of the sheet at points (see :meth:`GaussianBeams.evaluate`)."""
+        normal = np.cross(self.direction, self.fan_axis)
+        rel = x - self.origin
+        s = rel @ normal
+        a, d = rel @ self.fan_axis, rel @ self.direction
+        r = np.hypot(a, d)
+        w = self.radius(r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inten = (self.power_W / (2 * self.half_angle_rad) / r * np.sqrt(2 / np.pi) / w
+                     * np.exp(-2 * s * s / (w * w)))
+        inside = (d > 0) & (np.abs(np.arctan2(a, d)) <= self.half_angle_rad)
+        inten = np.where(inside, inten, 0.0)
+        dist = np.linalg.norm(rel, axis=1)
+        return inten, rel / np.maximum(dist, 1e-300)[:, None], dist
+
+
+@dataclass
+class LaserTrace:
+    """Everything one laser pose does to the scene.
+
+    Attributes
+    ----------
+    sources : list of GaussianBeams or LightSheet
+        Emitters to evaluate when shading (primary, then secondary beamlets).
+    truth_points : ndarray of shape (K, 3)
+        Centre-line hits, world metres.
+    truth_kind : list of str
+        ``"primary"`` or ``"secondary"`` per truth point.
+    footprint_points, footprint_radius_m : ndarray (F, 3), (F,)
+        Where light lands and how far it spreads (for render windows).
+    """
+
+    sources: list = field(default_factory=list)
+    truth_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    truth_kind: list = field(default_factory=list)
+    footprint_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    footprint_radius_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def reflect(d: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Mirror directions ``d - 2 (d·n) n`` for rows of unit vectors."""
+    return d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
+
+
+def trace_laser(pose: BeamPose, spec: LaserSpec, scene) -> LaserTrace:
+    """Cast a laser pose into the scene: primary hits, secondary beamlets and their hits.
+
+    Parameters
+    ----------
+    pose : BeamPose
+        ``fan_axis`` None for a spot, set for a stripe.
+    spec : LaserSpec
+    scene : Scene
+
+    Returns
+    -------
+    LaserTrace
+    """
+    caster = scene.raycaster
+    if pose.fan_axis is None:
+        source = GaussianBeams(pose.origin[None], pose.direction[None], np.array([spec.waist_m]),
+                               np.array([spec.focus_m]), np.array([spec.rayleigh_m]), np.array([spec.power_W]))
+        dirs = pose.direction[None]
+        power_per_ray = np.array([spec.power_W])
+        truth_stride = 1
+    else:
+        half = np.radians(spec.fan_half_angle_deg)
+        source = LightSheet(pose.origin, pose.direction, pose.fan_axis, half, spec.waist_m, spec.focus_m,
+                            spec.rayleigh_m, spec.stripe_power_W)
+        phi = np.linspace(-half, half, N_FAN_SAMPLES)
+        dirs = np.cos(phi)[:, None] * pose.direction + np.sin(phi)[:, None] * pose.fan_axis
+        power_per_ray = np.full(N_FAN_SAMPLES, spec.stripe_power_W / N_FAN_SAMPLES)
+        truth_stride = N_FAN_SAMPLES // N_FAN_TRUTH
+    origins = np.broadcast_to(pose.origin, dirs.shape)
+    hits = caster.cast(origins, dirs)
+    ok = hits.hit
+    p, n_geo, n_sh, t = hits.point[ok], hits.normal[ok], hits.shading_normal[ok], hits.t[ok]
+    cos_i = np.abs(np.einsum("ij,ij->i", dirs[ok], n_geo))
+    radius0 = _source_radius(source, t)
+    trace = LaserTrace(sources=[source])
+    keep = np.flatnonzero(ok)
+    truth_sel = (keep % truth_stride) == 0
+    truth = [p[truth_sel]]
+    kinds = ["primary"] * int(truth_sel.sum())
+    fp_pts = [p]
+    fp_rad = [FOOTPRINT_RADII * radius0 / np.maximum(cos_i, MIN_COS_FOOTPRINT)]
+
+    # secondary beamlets from shiny hits
+    mats = scene.materials
+    spec_frac = np.array([m.specular for m in mats])[hits.obj[ok]]
+    rough = np.array([m.roughness_rad for m in mats])[hits.obj[ok]]
+    shiny = spec_frac > 0
+    if np.any(shiny):
+        r_dir = reflect(dirs[ok][shiny], n_sh[shiny])
+        w_start = radius0[shiny]
+        beamlets = GaussianBeams(p[shiny] + SURFACE_EPS_M * n_geo[shiny], r_dir, w_start, np.zeros(len(w_start)),
+                                 w_start / (2 * rough[shiny]), spec_frac[shiny] * power_per_ray[ok][shiny],
+                                 emitter_normal=n_geo[shiny])
+        h2 = caster.cast(beamlets.origin, r_dir)
+        ok2 = h2.hit
+        if np.any(ok2):
+            q = h2.point[ok2]
+            cos2 = np.abs(np.einsum("ij,ij->i", r_dir[ok2], h2.normal[ok2]))
+            w2 = beamlets.radius(h2.t[ok2], np.flatnonzero(ok2))
+            reach = FOOTPRINT_RADII * w2 / np.maximum(cos2, MIN_COS_FOOTPRINT)
+            landed = {f.name: getattr(beamlets, f.name)[ok2] for f in dataclasses.fields(beamlets)
+                      if getattr(beamlets, f.name) is not None}
+            trace.sources.append(GaussianBeams(**landed, landing=q, reach_m=reach))
+            sel2 = (keep[shiny][ok2] % truth_stride) == 0
+            truth.append(q[sel2])
+            kinds += ["secondary"] * int(sel2.sum())
+            fp_pts.append(q)
+            fp_rad.append(reach)
+    trace.truth_points = np.vstack(truth)
+    trace.truth_kind = kinds
+    trace.footprint_points = np.vstack(fp_pts)
+    trace.footprint_radius_m = np.concatenate(fp_rad)
+    return trace
+
+
+def _source_radius(source, t: np.ndarray) -> np.ndarray:
+    """1/e² radius (spot) or half-thickness (sheet) of the primary light at distance ``t``."""
+    return source.radius(t) if isinstance(source, LightSheet) else source.radius(t, 0)
+
+
+def raster_poses(spec: LaserSpec, center_m, radius_m: float, n_frames: int, mode: str) -> list[BeamPose]:
+    """Beam poses of a plain pan/tilt raster from the laser head covering a sphere of interest.
+
+    Spots follow a serpentine grid of about ``n_frames`` pan × tilt angles (truncated to
+    ``n_frames``); stripes are vertical-ish fans swept in pan.
+
+    Parameters
+    ----------
+    spec : LaserSpec
+    center_m : (3,) float
+        Centre of the region to cover, world metres.
+    radius_m : float
+        Its radius, metres.
+    n_frames : int
+    mode : {"spot", "stripe"}
+
+    Returns
+    -------
+    list of BeamPose
+    """
+    from scipy.spatial.transform import Rotation
+
+    if mode not in ("spot", "stripe"):
+        raise InputError(f"mode must be 'spot' or 'stripe', got {mode!r}")
+    if not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
+        raise InputError(f"n_frames must be a positive integer, got {n_frames!r}")
+    head = np.asarray(spec.head_m, dtype=np.float64)
+    aim = np.asarray(center_m, dtype=np.float64) - head
+    dist = np.linalg.norm(aim)
+    central = aim / dist
+    up = np.array([0.0, 0.0, 1.0])
+    tilt_axis = np.cross(central, up)
+    tilt_axis /= np.linalg.norm(tilt_axis)
+    fan_axis = np.cross(tilt_axis, central)
+    half = np.arctan2(radius_m, dist)
+    poses = []
+    if mode == "spot":
+        n_side = int(np.ceil(np.sqrt(n_frames)))
+        grid = np.linspace(-half, half, n_side)
+        for j, tilt in enumerate(grid):
+            pans = grid if j % 2 == 0 else grid[::-1]
+            for pan in pans:
+                R = Rotation.from_rotvec(pan * fan_axis) * Rotation.from_rotvec(tilt * tilt_axis)
+                poses.append(BeamPose(head, R.apply(central)))
+        return poses[:n_frames]
+    for pan in np.linspace(-half, half, n_frames):
+        R = Rotation.from_rotvec(pan * fan_axis)
+        poses.append(BeamPose(head, R.apply(central), fan_axis.copy()))
+    return poses

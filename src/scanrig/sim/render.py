@@ -1,0 +1,265 @@
+"""Rendering one camera's view: the laser-free background once, then small laser windows.
+
+Image formation, in order (all linear until the sensor):
+
+1. radiance of every pixel from rays through its centre; pixels that differ from a neighbour
+   (object boundary, shadow or texture edge: :data:`EDGE_CONTRAST`) are re-rendered as the mean
+   of ``s × s`` sub-pixel rays (pixel integration where it matters);
+2. electrons = radiance × :attr:`Sensor.e_per_radiance`, then the Gaussian lens PSF;
+3. a laser frame adds the laser's electrons only in a window around the projected footprints:
+   ``s × s`` sub-pixel rays per pixel are cast through the real distorted camera (occlusion and
+   distortion exact), the optical image at s× resolution gets speckle and the PSF, and each pixel
+   averages its block (pixel integration after blur, as on a real sensor);
+4. noise, full well, gain, black level, rounding and clipping (:mod:`scanrig.sim.sensor`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from scanrig.geometry import Camera
+from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
+from scanrig.sim.materials import specular_lobe
+from scanrig.sim.pixel_rays import PixelRayTable
+from scanrig.sim.sensor import NoiseField, Sensor
+
+#: Relative radiance step between neighbouring pixel centres that triggers supersampling.
+EDGE_CONTRAST = 0.15
+#: Radiance of rays that leave the scene, as a fraction of a white Lambertian under ambient light.
+BACKDROP_ALBEDO = 0.1
+#: Largest half-size of a laser window around one footprint point, pixels.
+MAX_WINDOW_RADIUS_PX = 200
+#: Lamp shadow rays are cast this far, metres (beyond any scene).
+_FAR_M = 1e3
+
+
+@dataclass(frozen=True)
+class Window:
+    """Laser electrons in a rectangle of the image: rows ``v0:v0+h``, columns ``u0:u0+w``."""
+
+    v0: int
+    u0: int
+    electrons: np.ndarray   # (h, w) float32, after the PSF
+
+    @property
+    def slices(self):
+        h, w = self.electrons.shape
+        return slice(self.v0, self.v0 + h), slice(self.u0, self.u0 + w)
+
+
+class CameraView:
+    """A camera looking at a scene.
+
+    Parameters
+    ----------
+    camera : Camera
+    scene : Scene
+    sensor : Sensor, optional
+        Defaults to the scene's sensor.
+    rng : numpy.random.Generator, optional
+        Draws the camera's noise bank; needed only for noisy frames (:meth:`frame`).
+    ray_table : PixelRayTable, optional
+        The camera's ray table, to share it between views of several scenes.
+    """
+
+    def __init__(self, camera: Camera, scene, sensor: Sensor | None = None, rng: np.random.Generator | None = None,
+                 ray_table: PixelRayTable | None = None):
+        self.camera = camera
+        self.scene = scene
+        self.sensor = sensor or scene.sensor
+        self._rng = rng
+        self.ray_table = ray_table or PixelRayTable(camera)
+
+    # --- background ---------------------------------------------------------------------------
+    @cached_property
+    def background_e(self) -> np.ndarray:
+        """Noise-free laser-free image in electrons, shape (H, W), float32 (after the PSF)."""
+        cam = self.camera
+        radiance, obj = self._radiance_background(*self.ray_table.grid_rays())
+        radiance = radiance.reshape(cam.height, cam.width)
+        obj = obj.reshape(cam.height, cam.width)
+        s = self.sensor.supersampling
+        if s > 1:
+            edge = _edges(radiance, obj)
+            idx = np.flatnonzero(edge)
+            if idx.size:
+                centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
+                sub = _subpixel_samples(centres, s)
+                rays = self.ray_table.rays(sub)
+                radiance.ravel()[idx] = self._radiance_background(*rays)[0].reshape(idx.size, s * s).mean(axis=1)
+        return self.sensor.blur(radiance * self.sensor.e_per_radiance)
+
+    @cached_property
+    def noise(self) -> NoiseField:
+        """The camera's fast full-frame noise generator (needs ``rng`` at construction)."""
+        if self._rng is None:
+            raise ValueError("CameraView needs rng to draw noisy frames")
+        return NoiseField(self.sensor, self.background_e, self._rng)
+
+    def _radiance_background(self, origin: np.ndarray, dirs: np.ndarray):
+        """Laser-free radiance along camera rays, and the object hit (-1 on a miss)."""
+        caster = self.scene.raycaster
+        hits = caster.cast(np.broadcast_to(origin, dirs.shape), dirs)
+        light = self.scene.lighting
+        radiance = np.full(len(dirs), BACKDROP_ALBEDO * light.ambient_W_m2 / np.pi)
+        ok = hits.hit
+        p, n, ng, view = hits.point[ok], hits.shading_normal[ok], hits.normal[ok], -dirs[ok]
+        albedo, spec, rough = self._surface(hits.obj[ok], p)
+        lamp_dir = np.asarray(light.lamp_direction)
+        cos_l = np.maximum(-(n @ lamp_dir), 0.0) * (-(ng @ lamp_dir) > 0)
+        lit = cos_l > 0
+        if light.lamp_W_m2 > 0 and np.any(lit):
+            shadow = caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit], np.broadcast_to(-lamp_dir, (int(lit.sum()), 3)),
+                                     np.full(int(lit.sum()), _FAR_M))
+            cos_l[np.flatnonzero(lit)[shadow]] = 0.0
+        e_lamp = light.lamp_W_m2 * cos_l
+        mirror = reflect(np.broadcast_to(lamp_dir, n.shape), n)
+        glare = np.where(spec > 0, spec * e_lamp * specular_lobe(np.einsum("ij,ij->i", mirror, view), rough), 0.0)
+        radiance[ok] = (albedo + spec) * light.ambient_W_m2 / np.pi + albedo * e_lamp / np.pi + glare
+        return radiance, hits.obj
+
+    def _surface(self, obj: np.ndarray, p: np.ndarray):
+        """Albedo, specular fraction and roughness at hit points of objects ``obj``."""
+        albedo = np.empty(len(obj))
+        mats = self.scene.materials
+        for j in np.unique(obj):
+            sel = obj == j
+            albedo[sel] = mats[j].albedo_at(p[sel])
+        spec = np.array([m.specular for m in mats])[obj]
+        rough = np.array([m.roughness_rad for m in mats])[obj]
+        return albedo, spec, rough
+
+    # --- laser ----------------------------------------------------------------------------------
+    def laser_window(self, trace: LaserTrace, rng: np.random.Generator | None = None) -> Window | None:
+        """The laser's electrons around its footprints in this camera (None if none is in view).
+
+        Parameters
+        ----------
+        trace : LaserTrace
+        rng : numpy.random.Generator, optional
+            Draws the speckle pattern when the sensor has ``speckle_contrast > 0``.
+        """
+        import cv2
+
+        cam, sensor = self.camera, self.sensor
+        if len(trace.footprint_points) == 0:
+            return None
+        p_cam = cam.cam_from_world.apply(trace.footprint_points)
+        q = cam.project(trace.footprint_points)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r_px = trace.footprint_radius_m * cam.params[:2].max() / p_cam[:, 2]
+        r_px = np.minimum(r_px + 3 * sensor.psf_sigma_px + 2, MAX_WINDOW_RADIUS_PX)
+        ok = np.isfinite(q).all(axis=1) & (q[:, 0] + r_px >= 0) & (q[:, 1] + r_px >= 0)
+        ok &= (q[:, 0] - r_px <= cam.width - 1) & (q[:, 1] - r_px <= cam.height - 1)
+        if not np.any(ok):
+            return None
+        q, r_px = q[ok], r_px[ok]
+        u0 = int(max(0, np.floor((q[:, 0] - r_px).min())))
+        v0 = int(max(0, np.floor((q[:, 1] - r_px).min())))
+        u1 = int(min(cam.width - 1, np.ceil((q[:, 0] + r_px).max())))
+        v1 = int(min(cam.height - 1, np.ceil((q[:, 1] + r_px).max())))
+        mask = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.uint8)
+        for (uu, vv), rr in zip(np.rint(q - [u0, v0]).astype(int), np.ceil(r_px).astype(int)):
+            cv2.circle(mask, (int(uu), int(vv)), int(rr), 1, thickness=-1)
+        rows, cols = np.nonzero(mask)
+        centres = np.column_stack([cols + u0, rows + v0]).astype(np.float64)
+        s = sensor.supersampling
+        radiance = self.laser_radiance(_subpixel_samples(centres, s), trace)
+        # The image on the sensor at s× resolution: speckle and the lens PSF act on the optical
+        # image, then each pixel integrates (averages) its s × s block.
+        fine = np.zeros((mask.shape[0] * s, mask.shape[1] * s), dtype=np.float32)
+        sub_r, sub_c = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+        fine[(rows[:, None] * s + sub_r.ravel()).ravel(), (cols[:, None] * s + sub_c.ravel()).ravel()] = radiance
+        if sensor.speckle_contrast > 0 and rng is not None:
+            fine *= _speckle(fine.shape, sensor.speckle_contrast, sensor.speckle_grain_px * s, rng)
+        if sensor.psf_sigma_px > 0:
+            fine = cv2.GaussianBlur(fine, (0, 0), sensor.psf_sigma_px * s, borderType=cv2.BORDER_CONSTANT)
+        patch = fine.reshape(mask.shape[0], s, mask.shape[1], s).mean(axis=(1, 3)) * sensor.e_per_radiance
+        return Window(v0, u0, patch)
+
+    def laser_radiance(self, q: np.ndarray, trace: LaserTrace) -> np.ndarray:
+        """Radiance that the laser light adds at pixel positions ``q`` (N, 2), W/(m²·sr)."""
+        origin, dirs = self.ray_table.rays(q)
+        caster = self.scene.raycaster
+        hits = caster.cast(np.broadcast_to(origin, dirs.shape), dirs)
+        radiance = np.zeros(len(q))
+        ok = hits.hit
+        p, n, ng, view = hits.point[ok], hits.shading_normal[ok], hits.normal[ok], -dirs[ok]
+        albedo, spec, rough = self._surface(hits.obj[ok], p)
+        out = np.zeros(len(p))
+        for source in trace.sources:
+            inten, prop, path = source.evaluate(p)
+            cos_i = np.maximum(-np.einsum("ij,ij->i", prop, n), 0.0) * (np.einsum("ij,ij->i", prop, ng) < 0)
+            lit = np.flatnonzero((inten > 0) & (cos_i > 0))
+            if lit.size == 0:
+                continue
+            shadow = caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit], -prop[lit], path[lit] - 2 * SURFACE_EPS_M)
+            lit = lit[~shadow]
+            e = inten[lit] * cos_i[lit]
+            brdf = albedo[lit] / np.pi
+            shiny = spec[lit] > 0
+            if np.any(shiny):
+                sl = lit[shiny]
+                cos_a = np.einsum("ij,ij->i", reflect(prop[sl], n[sl]), view[sl])
+                brdf[shiny] += spec[sl] * specular_lobe(cos_a, rough[sl])
+            out[lit] += e * brdf
+        radiance[ok] = out
+        return radiance
+
+    # --- frames -----------------------------------------------------------------------------------
+    def clean_frame_e(self, trace: LaserTrace | None = None) -> np.ndarray:
+        """Noise-free expected electrons of a frame, shape (H, W), float32."""
+        img = self.background_e.copy()
+        win = self.laser_window(trace) if trace is not None else None
+        if win is not None:
+            img[win.slices] += win.electrons
+        return img
+
+    def frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
+        """A noisy digital frame (laser-free when ``trace`` is None), shape (H, W)."""
+        img = self.noise.frame(rng)
+        win = self.laser_window(trace, rng) if trace is not None else None
+        if win is not None:
+            img[win.slices] = self.sensor.expose(self.background_e[win.slices] + win.electrons, rng)
+        return img
+
+
+def _subpixel_samples(centres: np.ndarray, s: int) -> np.ndarray:
+    """``s × s`` sample positions per pixel (pixel i's samples are rows ``i*s²:(i+1)*s²``, row-major
+    within the pixel: sub-row index first)."""
+    offsets = (np.arange(s) + 0.5) / s - 0.5
+    dv, du = np.meshgrid(offsets, offsets, indexing="ij")
+    grid = np.column_stack([du.ravel(), dv.ravel()])
+    return (centres[:, None, :] + grid[None]).reshape(-1, 2)
+
+
+def _edges(radiance: np.ndarray, obj: np.ndarray) -> np.ndarray:
+    """Pixels that differ from a 4-neighbour in object or by more than EDGE_CONTRAST in radiance."""
+    edge = np.zeros(radiance.shape, dtype=bool)
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        ra, rb = radiance[tuple(a)], radiance[tuple(b)]
+        diff = (obj[tuple(a)] != obj[tuple(b)]) | (np.abs(ra - rb) > EDGE_CONTRAST * np.maximum(ra, rb))
+        edge[tuple(a)] |= diff
+        edge[tuple(b)] |= diff
+    return edge
+
+
+def _speckle(shape, contrast: float, grain_px: float, rng: np.random.Generator) -> np.ndarray:
+    """A speckle intensity field of mean 1 and contrast ``contrast`` (fully developed speckle is
+    the squared modulus of a low-pass complex Gaussian field; it is mixed with 1 for partial
+    contrast)."""
+    import cv2
+
+    field = rng.standard_normal((2, *shape)).astype(np.float32)
+    sigma = grain_px / 2.0
+    re = cv2.GaussianBlur(field[0], (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    im = cv2.GaussianBlur(field[1], (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    inten = re * re + im * im
+    inten /= max(float(inten.mean()), 1e-30)
+    return (1.0 + contrast * (inten - 1.0)).astype(np.float32)

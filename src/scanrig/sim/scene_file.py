@@ -1,0 +1,174 @@
+"""Scene files (TOML): objects, materials, lighting, cameras, laser and sensor.
+
+Format (lengths in metres, angles in degrees; every section but ``[[objects]]`` is optional and
+takes the fields of the matching class: :class:`~scanrig.sim.scene.Lighting`,
+:class:`~scanrig.sim.rigs.RigSpec`, :class:`~scanrig.sim.laser.LaserSpec`,
+:class:`~scanrig.sim.sensor.Sensor`, :class:`~scanrig.sim.materials.Material`)::
+
+    name = "default"
+    center_m = [0.0, 0.0, 0.1]        # region of interest: cameras aim here, the laser covers it
+    radius_m = 0.25
+
+    [lighting]
+    ambient_W_m2 = 40.0
+
+    [rig]
+    distance_m = 1.0
+
+    [laser]
+    head_m = [0.3, -0.75, 0.75]
+
+    [sensor]
+    bit_depth = 12
+
+    [materials.steel]
+    kind = "metal"                    # matte | dark | metal
+    specular = 0.6
+    roughness_rad = 0.03
+
+    [[objects]]
+    name = "beam"
+    shape = "ibeam_joint"             # plane sphere box cylinder torus stepped_block ibeam_joint freeform mesh
+    material = "steel"
+    position_m = [0.1, 0.0, 0.0]
+    rotation_deg = [0.0, 0.0, 30.0]   # extrinsic x, y, z
+    length_m = 0.25                   # shape parameters: the arguments of scanrig.sim.primitives.<shape>
+
+    [[objects]]
+    name = "part"
+    shape = "mesh"
+    file = "part.stl"                 # STL, PLY or OBJ, relative to this file
+    scale = 0.001                     # file units to metres
+    material = "paint"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Mapping
+from pathlib import Path
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.io.toml_fields import check_keys, read_toml
+from scanrig.sim import primitives
+from scanrig.sim.laser import LaserSpec
+from scanrig.sim.materials import Material
+from scanrig.sim.rigs import RigSpec
+from scanrig.sim.scene import Lighting, Scene, SceneObject, place
+from scanrig.sim.sensor import Sensor
+
+_TOP = ("name", "description", "center_m", "radius_m", "lighting", "rig", "laser", "sensor", "materials", "objects")
+_SECTIONS = {"lighting": Lighting, "rig": RigSpec, "laser": LaserSpec, "sensor": Sensor}
+_OBJECT_COMMON = ("name", "shape", "material", "position_m", "rotation_deg")
+
+
+def load_scene_file(path: str | Path) -> Scene:
+    """Read a scene file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A TOML scene file (format in the module docstring).
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file and the section or field at fault.
+    """
+    path = Path(path)
+    doc = read_toml(path)
+    check_keys(doc, _TOP, ("objects",), path, "top level")
+    sections = {key: _section(doc.get(key, {}), cls, path, f"[{key}]") for key, cls in _SECTIONS.items()}
+    materials = {}
+    mat_tables = doc.get("materials", {})
+    if not isinstance(mat_tables, Mapping):
+        raise FileFormatError(path, "[materials]: expected tables [materials.<name>]")
+    for name, table in mat_tables.items():
+        materials[name] = _section(table, Material, path, f"[materials.{name}]", name=name)
+    tables = doc["objects"]
+    if not isinstance(tables, list) or not tables:
+        raise FileFormatError(path, "objects must be a non-empty array of [[objects]] tables")
+    objects = [_object(t, i, materials, path) for i, t in enumerate(tables, start=1)]
+    try:
+        return Scene(
+            name=str(doc.get("name", path.stem)),
+            objects=tuple(objects),
+            center_m=tuple(doc.get("center_m", (0.0, 0.0, 0.1))),
+            radius_m=float(doc.get("radius_m", 0.25)),
+            **sections,
+        )
+    except (InputError, TypeError, ValueError) as exc:
+        raise FileFormatError(path, f"top level: {exc}") from None
+
+
+def _section(table, cls, path: Path, where: str, **fixed):
+    if not isinstance(table, Mapping):
+        raise FileFormatError(path, f"{where}: expected a table")
+    allowed = [f.name for f in dataclasses.fields(cls) if f.init and not f.name.startswith("_") and f.name not in fixed]
+    check_keys(table, allowed, (), path, where)
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
+    try:
+        return cls(**fixed, **values)
+    except (InputError, TypeError, ValueError) as exc:
+        raise FileFormatError(path, f"{where}: {exc}") from None
+
+
+def _object(table, index: int, materials: dict, path: Path) -> SceneObject:
+    where = f"[[objects]] #{index}"
+    if not isinstance(table, Mapping):
+        raise FileFormatError(path, f"{where}: expected a table")
+    for key in ("name", "shape", "material"):
+        if key not in table:
+            raise FileFormatError(path, f"{where}: missing field {key!r}")
+    where = f"{where} ({table['name']!r})"
+    shape = table["shape"]
+    if shape == "mesh":
+        params = ("file", "scale")
+        required = ("file",)
+    elif shape in primitives.SHAPES:
+        sig = inspect.signature(primitives.SHAPES[shape]).parameters.values()
+        params = tuple(p.name for p in sig)
+        required = tuple(p.name for p in sig if p.default is inspect.Parameter.empty)
+    else:
+        raise FileFormatError(path, f"{where}: shape must be one of {sorted(primitives.SHAPES) + ['mesh']}, got {shape!r}")
+    check_keys(table, _OBJECT_COMMON + params, required, path, where)
+    if table["material"] not in materials:
+        raise FileFormatError(path, f"{where}: material {table['material']!r} is not defined; "
+                                    f"defined: {sorted(materials)}")
+    args = {k: table[k] for k in params if k in table}
+    try:
+        if shape == "mesh":
+            mesh = _load_mesh(path.parent / args["file"], float(args.get("scale", 1.0)))
+        else:
+            mesh = primitives.SHAPES[shape](**args)
+        mesh = place(mesh, table.get("position_m", (0.0, 0.0, 0.0)), table.get("rotation_deg", (0.0, 0.0, 0.0)))
+    except FileFormatError:
+        raise
+    except (InputError, TypeError, ValueError) as exc:
+        raise FileFormatError(path, f"{where}: {exc}") from None
+    return SceneObject(str(table["name"]), mesh, materials[table["material"]])
+
+
+def _load_mesh(file: Path, scale: float):
+    """A triangle mesh from STL, PLY or OBJ, scaled to metres."""
+    import trimesh
+
+    if file.suffix.lower() not in (".stl", ".ply", ".obj"):
+        raise FileFormatError(file, "mesh file must be .stl, .ply or .obj")
+    if not file.is_file():
+        raise FileFormatError(file, "mesh file not found")
+    try:
+        mesh = trimesh.load_mesh(file, force="mesh")
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for broken files
+        raise FileFormatError(file, f"cannot read mesh: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise FileFormatError(file, "mesh file holds no triangles")
+    if not scale > 0:
+        raise InputError(f"mesh scale must be positive, got {scale!r}")
+    mesh.apply_scale(scale)
+    return mesh
