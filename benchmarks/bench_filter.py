@@ -1,0 +1,251 @@
+"""Benchmark of the robust surface filter against an oracle and baselines on the same data.
+
+Every method sees the same noisy realisation of each protocol surface (``docs/surface-filter.md``,
+reference notes section 3) and is scored against the analytic truth:
+
+* ``E/sigma``  RMS vertical error of the denoised true inliers, in units of the noise sigma;
+* ``/oracle``  that error over the oracle's (same network, plain least squares, true inliers);
+* ``floor``    the parametric floor sigma*sqrt(p/n) of the surface's own family, in sigma;
+* ``recall``   fraction of outliers with offset >= 5 sigma that are flagged;
+* ``FRR``      fraction of true inliers flagged;
+* ``width/h``  10-90 % transition width of the step, in sample spacings (step surface only);
+* ``s``        wall time.
+
+Then the sampling-need map on a simulated scan whose density falls towards grazing incidence and
+which has a hole: average precision of each criterion against the truly under-sampled nodes
+(piecewise-linear interpolation of the true surface at the sample sites off by more than the
+tolerance, or no sample around), and the time to filter 100 000 points (full run only).
+
+Run ``python benchmarks/bench_filter.py`` (several minutes) or with ``--quick``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from scipy.interpolate import LinearNDInterpolator
+
+from scanrig.surface.filter import filter_points, project_on_surface
+from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.sampling_need import sampling_need
+
+SIGMA = 0.01
+STEP_H = 0.2
+
+SURFACES = {  # name -> (f(x, y), parameters of the surface's own family, or None)
+    "plane": (lambda x, y: 0.3 * x - 0.2 * y + 0.1, 3),
+    "sphere": (lambda x, y: np.sqrt(4.0 - x**2 - y**2), 4),
+    "saddle": (lambda x, y: 0.5 * (x**2 - y**2), 6),
+    "step": (lambda x, y: STEP_H * (x - 0.1 * y > 0.05), 4),
+    "crease": (lambda x, y: 0.4 * np.abs(x - 0.1), 3),
+    "scan": (lambda x, y: 0.15 * np.sin(2.5 * x) * np.cos(2.0 * y) + 0.05 * x, None),
+}
+
+
+def sample(name, n_side, eps, rng):
+    """Sample sites, noisy heights and outliers of one protocol cell.
+
+    Returns x, y, z (N,), truth (N,), outlier mask (N,), offset from the truth (N,).
+    """
+    f = SURFACES[name][0]
+    if name == "scan":  # union of two simulated views: a dense one and a sparse jittered one
+        g = np.linspace(-1, 1, n_side)
+        x1, y1 = (a.ravel() for a in np.meshgrid(g, g))
+        m = n_side * n_side // 3
+        x = np.concatenate([x1 + rng.normal(0, 0.2 / n_side, x1.size), rng.uniform(-1, 1, m)])
+        y = np.concatenate([y1 + rng.normal(0, 0.2 / n_side, y1.size), rng.uniform(-1, 1, m)])
+        x, y = np.clip(x, -1, 1), np.clip(y, -1, 1)
+    else:
+        g = np.linspace(-1, 1, n_side)
+        x, y = (a.ravel() for a in np.meshgrid(g, g))
+    truth = f(x, y)
+    z = truth + rng.normal(0, SIGMA, x.size)
+    n_bad = int(round(eps * x.size))
+    bad = np.zeros(x.size, bool)
+    if n_bad:
+        kind = rng.integers(0, 3 if name in ("step", "crease") else 2, n_bad)
+        idx = rng.choice(x.size, n_bad, replace=False)
+        span = truth.max() - truth.min() + 0.1
+        # O1 uniform gross errors
+        z[idx[kind == 0]] = rng.uniform(truth.min() - span / 2, truth.max() + span / 2, (kind == 0).sum())
+        # O2 one-sided clustered reflections: pull points near 5 blob centres upwards
+        centres = rng.uniform(-0.8, 0.8, (5, 2))
+        o2 = idx[kind == 1]
+        near = cKDTree(np.column_stack([x, y])).query(centres, k=max(1, len(o2) // 5))[1].ravel()
+        o2 = np.unique(near)[: len(o2)]
+        z[o2] = truth[o2] + rng.uniform(5 * SIGMA, 0.3, o2.size)
+        # O3 edge ghosts: mixtures of the two sides within one sample of the discontinuity
+        if name in ("step", "crease"):
+            o3 = idx[kind == 2]
+            s = (x - 0.1 * y - 0.05) if name == "step" else (x - 0.1)
+            edge = np.argsort(np.abs(s))[: 4 * len(o3)]
+            o3 = rng.choice(edge, len(o3), replace=False)
+            lam = rng.uniform(0, 1, o3.size)
+            hi = STEP_H if name == "step" else 0.4 * (np.abs(x[o3] - 0.1) + 2 / n_side)
+            z[o3] = truth[o3] + np.where(truth[o3] > hi / 2, -1, 1) * lam * hi
+            o2 = np.union1d(o2, o3)
+        bad[idx[kind == 0]] = True
+        bad[o2] = True
+    return x, y, z, truth, bad, z - truth
+
+
+def network_methods(points, bad, q, settings, seed):
+    """Robust (Hampel), oracle, MSE and Huber networks; each returns (zhat, flags) at the sites."""
+    runs = {
+        "robust-hampel": dict(settings=settings),
+        "oracle": dict(settings=dataclasses.replace(settings, loss="mse"), train_mask=~bad),
+        "mse-net": dict(settings=dataclasses.replace(settings, loss="mse")),
+        "huber-net": dict(settings=dataclasses.replace(settings, loss="huber")),
+    }
+    out = {}
+    for name, kw in runs.items():
+        t0 = time.perf_counter()
+        res = filter_points(points, rng=np.random.default_rng(seed), q=q, **kw)
+        flagged = ~res.inlier if name in ("robust-hampel", "huber-net") else np.zeros(len(points), bool)
+        out[name] = (res, flagged, time.perf_counter() - t0)
+    return out
+
+
+def sor_quadratic(x, y, z, k=20, alpha=2.0, k_fit=30):
+    """Statistical outlier removal (k, alpha) then local quadratic least squares (Gaussian weights)."""
+    p = np.column_stack([x, y, z])
+    d, _ = cKDTree(p).query(p, k=k + 1)
+    mean_d = d[:, 1:].mean(axis=1)
+    removed = mean_d > mean_d.mean() + alpha * mean_d.std()
+    keep = np.flatnonzero(~removed)
+    xy = np.column_stack([x, y])
+    dist, nb = cKDTree(xy[keep]).query(xy, k=k_fit)
+    nb = keep[nb]
+    h = np.median(dist[:, -1])
+    dx, dy = x[nb] - x[:, None], y[nb] - y[:, None]
+    design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=-1)
+    w = np.exp(-(dist / h) ** 2)[..., None]
+    gram = np.einsum("nki,nkj->nij", design * w, design) + 1e-12 * np.eye(6)
+    rhs = np.einsum("nki,nk->ni", design * w, z[nb])
+    return np.linalg.solve(gram, rhs[..., None])[:, 0, 0], removed
+
+
+def grid_median(x, y, z, k=25):
+    """Median of the k nearest sites (a 5x5 window on a grid); flag |z - med| > 3 * 1.4826 MAD."""
+    _, nb = cKDTree(np.column_stack([x, y])).query(np.column_stack([x, y]), k=k)
+    med = np.median(z[nb], axis=1)
+    mad = 1.4826 * np.median(np.abs(z[nb] - med[:, None]), axis=1)
+    return med, np.abs(z - med) > 3 * mad
+
+
+def step_width(result, n_side):
+    """10-90 % transition width of the fitted step along its normal, in sample spacings."""
+    normal = np.array([1.0, -0.1]) / np.hypot(1.0, 0.1)
+    s = np.linspace(-0.3, 0.3, 601)
+    base = np.array([0.05, 0.0])
+    xy = base + s[:, None] * normal
+    proj = project_on_surface(result, np.column_stack([xy, np.full(len(s), STEP_H / 2)]))
+    t = proj[:, 2] / STEP_H
+    s_proj = (proj[:, :2] - base) @ normal
+    order = np.argsort(s_proj)
+    t, s_proj = np.maximum.accumulate(t[order]), s_proj[order]
+    width = np.interp(0.9, t, s_proj) - np.interp(0.1, t, s_proj)
+    return width / (2.0 / (n_side - 1))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="one outlier fraction, small grids")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    n_side = 32 if args.quick else 64
+    fractions = (0.2,) if args.quick else (0.0, 0.1, 0.2, 0.4)
+    surfaces = ("plane", "saddle", "step") if args.quick else tuple(SURFACES)
+    settings = FitSettings()
+    rng = np.random.default_rng(args.seed)
+    header = f"{'surface':8s} {'eps':>4s} {'q':>4s} {'method':14s} {'E/sigma':>8s} {'/oracle':>8s} {'floor':>6s} {'recall':>7s} {'FRR':>7s} {'width/h':>7s} {'s':>6s}"
+    print(f"sigma = {SIGMA} m; grid {n_side}x{n_side}; network {settings.architecture} "
+          f"{settings.depth}x{settings.hidden}; seed {args.seed}")
+    print(header)
+    print("-" * len(header))
+    for name in surfaces:
+        for eps in fractions:
+            x, y, z, truth, bad, offset = sample(name, n_side, eps, rng)
+            q = min(0.5, max(0.25, eps + 0.1))
+            points = np.column_stack([x, y, z])
+            n_in = int((~bad).sum())
+            p_family = SURFACES[name][1]
+            floor = f"{np.sqrt(p_family / n_in):6.3f}" if p_family else "     -"
+            f = SURFACES[name][0]
+            rows = {}
+            for method, (res, flagged, secs) in network_methods(points, bad, q, settings, args.seed).items():
+                d = res.denoised
+                err = d[:, 2] - f(d[:, 0], d[:, 1])
+                width = step_width(res, n_side) if name == "step" else np.nan
+                rows[method] = (err, flagged, width, secs)
+            for method, fn in (("sor+quadratic", sor_quadratic), ("grid-median", grid_median)):
+                t0 = time.perf_counter()
+                zhat, flagged = fn(x, y, z)
+                rows[method] = (zhat - truth, flagged, np.nan, time.perf_counter() - t0)
+            e_oracle = np.sqrt(np.mean(rows["oracle"][0][~bad] ** 2))
+            for method, (err, flagged, width, secs) in rows.items():
+                e = np.sqrt(np.mean(err[~bad] ** 2))
+                far = bad & (np.abs(offset) >= 5 * SIGMA)
+                recall = f"{np.mean(flagged[far]):7.3f}" if far.any() and method != "oracle" else "      -"
+                frr = f"{np.mean(flagged[~bad]):7.4f}" if method != "oracle" else "      -"
+                w = f"{width:7.2f}" if np.isfinite(width) else "      -"
+                print(f"{name:8s} {eps:4.2f} {q:4.2f} {method:14s} {e / SIGMA:8.3f} {e / e_oracle:8.3f} "
+                      f"{floor} {recall} {frr} {w} {secs:6.1f}", flush=True)
+    need_benchmark(rng, args.seed)
+    if not args.quick:
+        timing(rng, args.seed)
+
+
+def average_precision(score, label):
+    """Average precision of ranking ``score`` (larger first) against boolean ``label``."""
+    hits = label[np.argsort(-score, kind="stable")]
+    precision = np.cumsum(hits) / np.arange(1, len(hits) + 1)
+    return float(precision[hits].mean())
+
+
+def need_benchmark(rng, seed, tolerance=0.002, noise=0.002):
+    """AP of each sampling-need criterion on a scan with falling density and a hole."""
+    f = SURFACES["scan"][0]
+    xy = rng.uniform(-1, 1, (12000, 2))
+    keep = rng.random(len(xy)) < np.interp(xy[:, 0], [-1, 1], [0.6, 0.08])  # grazing towards +x
+    keep &= np.linalg.norm(xy - [0.4, -0.3], axis=1) > 0.2  # a hole
+    xy = xy[keep]
+    z = f(xy[:, 0], xy[:, 1]) + rng.normal(0, noise, len(xy))
+    t0 = time.perf_counter()
+    result = filter_points(np.column_stack([xy, z]), rng=np.random.default_rng(seed))
+    need = sampling_need(result, tolerance=tolerance)
+    secs = time.perf_counter() - t0
+    p = need.positions
+    interp = LinearNDInterpolator(xy, f(xy[:, 0], xy[:, 1]))(p[:, 0], p[:, 1])
+    label = ~(np.abs(interp - f(p[:, 0], p[:, 1])) <= tolerance)  # NaN: outside the samples' hull
+    print(f"\nsampling need: {len(xy)} points, {len(p)} nodes, {label.mean():.1%} truly under-sampled "
+          f"(tolerance {tolerance} m), {secs:.1f} s")
+    print(f"{'criterion':32s} {'AP':>6s}")
+    for name, score in (("density per area (alone)", need.density_need),
+                        ("bootstrap (fold) spread", need.spread_need),
+                        ("curvature-limited spacing", need.curvature),
+                        ("random (base rate)", rng.random(len(p)))):
+        print(f"{name:32s} {average_precision(score, label):6.3f}")
+
+
+def timing(rng, seed):
+    """Wall time of the whole pipeline on 100 000 points of the simulated scan surface."""
+    n_side = 283
+    x, y, z, *_ = sample("scan", n_side, 0.1, rng)
+    points = np.column_stack([x, y, z])[:100_000]
+    t0 = time.perf_counter()
+    res = filter_points(points, rng=np.random.default_rng(seed))
+    print(f"\n{len(points)} points, {len(res.charts)} charts, {torch.get_num_threads()} threads: "
+          f"{time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""A batch of independent height-field networks ``z = f(u, v)``, one per (chart, fold) copy.
+
+Every copy has the same architecture and its own weights; all copies are evaluated with one
+batched matrix product, so fitting many charts costs one forward pass, not a Python loop.
+
+Architectures
+-------------
+``"ridge"``
+    One hidden layer of ridge units ``s(a u + b v + c)`` with the logistic sigmoid ``s``, summed
+    with output weights: the network of the source method (Chen & Jain's "nonlinear cascade of
+    affine transformations" with one hidden layer).
+``"mlp"``
+    ``depth`` hidden layers of ``tanh`` units (our choice for the default: deeper networks fit
+    creases and steps with fewer units).
+
+Inputs and outputs are in the chart's normalised coordinates (about [-1, 1]); the caller scales.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from scanrig.errors import InputError
+
+ARCHITECTURES = ("ridge", "mlp")
+
+
+class HeightFieldNets(torch.nn.Module):
+    """``n_models`` independent networks mapping ``(u, v)`` to ``z``.
+
+    Parameters
+    ----------
+    n_models : int
+        Number of independent copies.
+    hidden : int
+        Units per hidden layer.
+    depth : int
+        Hidden layers (``"ridge"`` requires 1).
+    architecture : {"ridge", "mlp"}
+        See the module docstring.
+    generator : torch.Generator
+        Seeds the initial weights.
+    first_layer_scale : float
+        Standard deviation of the first-layer weights; larger values start with sharper ridges.
+    """
+
+    def __init__(self, n_models: int, *, hidden: int, depth: int, architecture: str,
+                 generator: torch.Generator, first_layer_scale: float = 3.0):
+        super().__init__()
+        if architecture not in ARCHITECTURES:
+            raise InputError(f"architecture must be one of {ARCHITECTURES}, got {architecture!r}")
+        if architecture == "ridge" and depth != 1:
+            raise InputError(f"the 'ridge' network has one hidden layer, got depth={depth}")
+        if hidden < 1 or depth < 1:
+            raise InputError(f"hidden and depth must be >= 1, got {hidden}, {depth}")
+        self.architecture = architecture
+        self.activation = torch.sigmoid if architecture == "ridge" else torch.tanh
+        widths = [2] + [hidden] * depth + [1]
+        weights, biases = [], []
+        for i, (w_in, w_out) in enumerate(zip(widths[:-1], widths[1:])):
+            std = first_layer_scale if i == 0 else 1.0 / math.sqrt(w_in)
+            weights.append(torch.nn.Parameter(
+                std * torch.randn(n_models, w_in, w_out, generator=generator)))
+            bias_std = first_layer_scale if i == 0 else 0.0
+            biases.append(torch.nn.Parameter(
+                bias_std * torch.randn(n_models, 1, w_out, generator=generator)))
+        self.weights = torch.nn.ParameterList(weights)
+        self.biases = torch.nn.ParameterList(biases)
+
+    def features(self, uv: torch.Tensor) -> torch.Tensor:
+        """Activations of the last hidden layer with a constant column appended.
+
+        Parameters
+        ----------
+        uv : (n_models, n, 2) tensor
+            Normalised chart coordinates.
+
+        Returns
+        -------
+        (n_models, n, hidden + 1) tensor
+            The output layer is linear in these: ``z = features @ [w_out; b_out]``.
+        """
+        h = uv
+        for w, b in zip(self.weights[:-1], self.biases[:-1]):
+            h = self.activation(torch.baddbmm(b, h, w))
+        return torch.cat([h, torch.ones_like(h[..., :1])], dim=-1)
+
+    def hidden_parameters(self) -> list[torch.nn.Parameter]:
+        """Weights and biases of the hidden layers (the output layer is solved, not descended)."""
+        return list(self.weights[:-1]) + list(self.biases[:-1])
+
+    @torch.no_grad()
+    def set_output(self, coef: torch.Tensor) -> None:
+        """Set the linear output layer from ``(n_models, hidden + 1)`` coefficients (last = bias)."""
+        self.weights[-1].copy_(coef[:, :-1, None])
+        self.biases[-1].copy_(coef[:, None, -1:])
+
+    def forward(self, uv: torch.Tensor) -> torch.Tensor:
+        """Heights of every copy at its own inputs.
+
+        Parameters
+        ----------
+        uv : (n_models, n, 2) tensor
+            Normalised chart coordinates.
+
+        Returns
+        -------
+        (n_models, n) tensor
+            Normalised heights.
+        """
+        h = self.features(uv)[..., :-1]
+        return torch.baddbmm(self.biases[-1], h, self.weights[-1])[..., 0]

@@ -1,0 +1,396 @@
+"""Robust training of height-field networks: trimmed warm start, then Hampel tanh loss.
+
+This is Chen & Jain's robust back-propagation (the output error ``z - zhat`` replaced by
+``psi_t(z - zhat)``, with cut-offs that shrink as the noise scale becomes known), made concrete
+with the choices documented in ``docs/surface-filter.md``:
+
+1. **Warm start** (our choice): with the hidden layers at their random initial values, the
+   linear output layer is fitted by ``lad_steps`` IRLS steps on the absolute residual (the
+   conditional median, which stays on the inliers while fewer than half of the points are bad)
+   and then ``trim_steps`` concentration steps of least trimmed squares (the ``ceil((1 - q) n)``
+   smallest residuals; breakdown point q). No gradient step is taken: trimming with a flexible
+   network rewards chasing the noise of the kept points.
+2. **Held-out residuals** (our choice): the points of a chart are split in ``n_folds`` folds;
+   besides the full network, one fold network per fold is trained on the other folds. The
+   noise scale comes from the residual of each point under the fold network that never saw it,
+   so an over-fitting network cannot shrink the scale.
+3. **Scale and bootstrap** (Chen & Jain's bootstrap confidence interval; our estimator):
+   :func:`~scanrig.surface.hampel.robust_scale` gives sigma and its bootstrap upper bound
+   sigma+; ``a_t = p sigma+``, ``b_t = r sigma+``, ``beta_t = gamma / sigma+``, recomputed every
+   ``update_every`` epochs and never allowed to grow (monotone shrinkage).
+4. **Robust back-propagation**: ``epochs`` epochs of every layer on the Hampel tanh loss of
+   :mod:`scanrig.surface.hampel`.
+
+All charts and folds are trained at once as one batch of independent networks
+(:class:`~scanrig.surface.network.HeightFieldNets`). The hidden layers follow the gradient of the
+loss (Adam, full batch); the linear output layer is kept at its iteratively reweighted
+least-squares optimum for the current hidden layers (variable projection; our choice, it
+converges in far fewer epochs than descending every weight).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from scanrig.errors import InputError
+from scanrig.surface.hampel import HampelConstants, check_q, robust_scale
+from scanrig.surface.network import HeightFieldNets
+
+LOSSES = ("hampel", "mse", "huber")
+HUBER_K = 1.345  # Huber's cut-off in units of sigma: 95 % Gaussian efficiency
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Network, loss and training schedule of the robust fit.
+
+    Attributes
+    ----------
+    q : float
+        Tolerated fraction of bad data in (0, 0.5]: trimming of the warm start and breakdown
+        point of the noise scale.
+    loss : {"hampel", "mse", "huber"}
+        ``"hampel"`` is the robust method; ``"mse"`` and ``"huber"`` are the baselines (same
+        network and epochs, no warm start).
+    architecture, hidden, depth : str, int, int
+        Network, see :class:`~scanrig.surface.network.HeightFieldNets`.
+    n_folds : int
+        Folds for the held-out residuals (>= 2).
+    lad_steps, trim_steps : int
+        IRLS steps of the median start and concentration steps of the trimmed start
+        (``"hampel"`` only; output layer only).
+    epochs : int
+        Full-batch epochs of back-propagation on the loss.
+    update_every : int
+        Epochs between updates of the noise scale and the cut-offs.
+    final_irls : int
+        Iteratively reweighted least-squares steps of the output layer after the last epoch.
+    learning_rate : float
+        Adam step at the start; it decays by cosine to ``learning_rate / 20``.
+    constants : HampelConstants
+        ``(p, r, gamma)`` of the tanh estimator.
+    n_boot : int
+        Bootstrap resamples for the upper bound of the noise scale.
+    alpha : float
+        One-sided level of that bound.
+    """
+
+    q: float = 0.25
+    loss: str = "hampel"
+    architecture: str = "mlp"
+    hidden: int = 24
+    depth: int = 2
+    n_folds: int = 2
+    lad_steps: int = 20
+    trim_steps: int = 20
+    epochs: int = 300
+    update_every: int = 40
+    final_irls: int = 5
+    learning_rate: float = 0.01
+    constants: HampelConstants = field(default_factory=HampelConstants)
+    n_boot: int = 200
+    alpha: float = 0.05
+
+    def __post_init__(self):
+        check_q(self.q)
+        if self.loss not in LOSSES:
+            raise InputError(f"loss must be one of {LOSSES}, got {self.loss!r}")
+        if self.n_folds < 2:
+            raise InputError(f"n_folds must be >= 2, got {self.n_folds}")
+        if min(self.epochs, self.update_every, self.final_irls) < 1:
+            raise InputError("epochs, update_every and final_irls must be >= 1")
+
+
+@dataclass
+class ChartFits:
+    """Trained networks of a batch of charts and their final robust statistics.
+
+    Arrays are padded to the largest chart: ``(C, n_max)``, meaningful where ``valid``.
+    Heights and residuals are in the charts' normalised units (divide by nothing: the caller
+    owns the scales).
+
+    Attributes
+    ----------
+    nets : HeightFieldNets
+        ``C * (n_folds + 1)`` networks; copy ``c * (n_folds + 1)`` is chart c's full network,
+        the next ``n_folds`` its fold networks.
+    n_folds : int
+        Folds per chart.
+    z_fit : (C, n_max) float array
+        Full network at the input points.
+    residual_heldout : (C, n_max) float array
+        ``z`` minus the fold network that did not see the point.
+    sigma, sigma_upper : (C,) float arrays
+        Final noise scale and its bootstrap upper bound.
+    a, b, beta : (C,) float arrays
+        Final cut-offs and slope.
+    history : list of dict
+        One entry per scale update: ``epoch``, ``sigma_upper`` (C,), ``rejected`` (C,) fraction.
+    """
+
+    nets: HeightFieldNets
+    n_folds: int
+    z_fit: np.ndarray
+    residual_heldout: np.ndarray
+    sigma: np.ndarray
+    sigma_upper: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    beta: np.ndarray
+    history: list
+
+    @torch.no_grad()
+    def predict(self, uv: np.ndarray, *, folds: bool = False) -> np.ndarray:
+        """Evaluate the networks of every chart at chart coordinates.
+
+        Parameters
+        ----------
+        uv : (C, m, 2) float array
+            Normalised coordinates per chart.
+        folds : bool
+            Return every copy (full and fold networks) instead of the full network only.
+
+        Returns
+        -------
+        (C, m) float array, or (C, n_folds + 1, m) if ``folds``
+        """
+        device = self.nets.weights[0].device
+        k = self.n_folds + 1
+        x = torch.as_tensor(uv, dtype=torch.float32, device=device)
+        x = x[:, None].expand(-1, k, -1, -1).reshape(-1, x.shape[1], 2)
+        z = self.nets(x).reshape(uv.shape[0], k, uv.shape[1]).double().cpu().numpy()
+        return z if folds else z[:, 0]
+
+    def height_derivatives(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient and Hessian of the full networks at chart coordinates (autograd).
+
+        Parameters
+        ----------
+        uv : (C, m, 2) float array
+
+        Returns
+        -------
+        grad : (C, m, 2) float array
+            ``(f_u, f_v)``.
+        hess : (C, m, 2, 2) float array
+            ``[[f_uu, f_uv], [f_uv, f_vv]]``.
+        """
+        device = self.nets.weights[0].device
+        k = self.n_folds + 1
+        x = torch.as_tensor(uv, dtype=torch.float32, device=device)
+        x = x[:, None].expand(-1, k, -1, -1).reshape(-1, x.shape[1], 2).clone().requires_grad_(True)
+        z = self.nets(x)
+        (g,) = torch.autograd.grad(z.sum(), x, create_graph=True)
+        rows = [torch.autograd.grad(g[..., i].sum(), x, retain_graph=True)[0] for i in range(2)]
+        hess = torch.stack(rows, dim=-2)
+        shape = (uv.shape[0], k, uv.shape[1])
+        grad = g.detach().reshape(*shape, 2)[:, 0]
+        hess = hess.detach().reshape(*shape, 2, 2)[:, 0]
+        return grad.double().cpu().numpy(), hess.double().cpu().numpy()
+
+
+def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: FitSettings,
+               rng: np.random.Generator, train_mask: np.ndarray | None = None,
+               sigma_floor: np.ndarray | float = 0.0, device: str = "cpu") -> ChartFits:
+    """Fit one robust height-field network per chart (plus its fold networks), all at once.
+
+    Parameters
+    ----------
+    uv : (C, n_max, 2) float array
+        Normalised chart coordinates (about [-1, 1]); padding rows are ignored.
+    z : (C, n_max) float array
+        Normalised heights.
+    valid : (C, n_max) bool array
+        Which rows are real points.
+    settings : FitSettings
+        Network, loss and schedule.
+    rng : numpy.random.Generator
+        Seeds the weights (through a ``torch.Generator``), the folds and the bootstrap.
+    train_mask : (C, n_max) bool array, optional
+        Points allowed in training (default: all valid points). The oracle of the benchmark
+        passes the true inliers.
+    sigma_floor : float or (C,) float array
+        Lower bound on the noise scale of each chart in its normalised units (the sensor's
+        known noise, if any).
+    device : str
+        Torch device (``"cpu"``, ``"cuda"``).
+
+    Returns
+    -------
+    ChartFits
+    """
+    n_charts, n_max = valid.shape
+    k = settings.n_folds + 1
+    train = valid if train_mask is None else (valid & train_mask)
+    if np.any(train.sum(axis=1) < 2 * settings.n_folds):
+        raise InputError(f"every chart needs at least {2 * settings.n_folds} points to fit")
+    fold = rng.integers(0, settings.n_folds, size=(n_charts, n_max))
+    # copy 0 trains on every point, copy j >= 1 on the points outside fold j - 1
+    copy_mask = np.stack([train] + [train & (fold != j) for j in range(settings.n_folds)], axis=1)
+
+    gen = torch.Generator(device="cpu").manual_seed(int(rng.integers(2**62)))
+    nets = HeightFieldNets(n_charts * k, hidden=settings.hidden, depth=settings.depth,
+                           architecture=settings.architecture, generator=gen).to(device)
+    x = torch.as_tensor(uv, dtype=torch.float32, device=device)
+    x = x[:, None].expand(-1, k, -1, -1).reshape(-1, n_max, 2)
+    t = torch.as_tensor(z, dtype=torch.float32, device=device)[:, None].expand(-1, k, -1).reshape(-1, n_max)
+    m = torch.as_tensor(copy_mask.reshape(-1, n_max), device=device)
+
+    opt = torch.optim.Adam(nets.hidden_parameters(), lr=settings.learning_rate)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=settings.epochs,
+                                                       eta_min=settings.learning_rate / 20)
+    n_train = m.sum(dim=1).clamp(min=1)
+    keep = torch.ceil((1.0 - settings.q) * n_train).long()
+    cut = np.full(n_charts, np.inf)
+    weight = m.double()
+    history = []
+    if settings.loss == "hampel":  # robust start on the initial random features, no gradient step
+        with torch.no_grad():
+            feats = nets.features(x)
+            for step in range(settings.lad_steps + settings.trim_steps):
+                coef = _weighted_solve(feats, t, weight)
+                r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+                weight = _irls_weight(r, m, settings.loss, None, keep, lad=step < settings.lad_steps)
+            nets.set_output(coef)
+    for epoch in range(settings.epochs):
+        if epoch % settings.update_every == 0:
+            state = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
+            history.append({"epoch": epoch, "sigma_upper": state["sigma_upper"].copy(),
+                            "rejected": state["rejected"]})
+        feats = nets.features(x)
+        with torch.no_grad():
+            coef = _weighted_solve(feats, t, weight)
+            nets.set_output(coef)
+        r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+        weight = _irls_weight(r.detach(), m, settings.loss, state, keep)
+        loss_per_copy = _robust_loss(r, m, settings.loss, state["torch"]) / n_train
+        opt.zero_grad(set_to_none=True)
+        loss_per_copy.sum().backward()
+        opt.step()
+        sched.step()
+    with torch.no_grad():  # output layer at its IRLS optimum for the final hidden layers
+        feats = nets.features(x)
+        for _ in range(settings.final_irls):
+            coef = _weighted_solve(feats, t, weight)
+            r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+            weight = _irls_weight(r, m, settings.loss, state, keep)
+        nets.set_output(coef)
+
+    final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
+    history.append({"epoch": settings.epochs, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
+    with torch.no_grad():
+        pred = nets(x).reshape(n_charts, k, n_max).double().cpu().numpy()
+    return ChartFits(nets=nets, n_folds=settings.n_folds, z_fit=pred[:, 0],
+                     residual_heldout=final["residual"], sigma=final["sigma"],
+                     sigma_upper=final["sigma_upper"], a=final["a"], b=final["b"],
+                     beta=final["beta"], history=history)
+
+
+def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Weighted least-squares output layer of every copy: (M, H + 1) float64, no gradient.
+
+    Solves ``(F^T W F + lambda I) c = F^T W t`` in float64, with a tiny ridge ``lambda`` relative
+    to the trace for copies whose features are nearly collinear.
+    """
+    f = feats.detach().double()
+    fw = f * weight[..., None]
+    gram = fw.transpose(1, 2) @ f
+    ridge = 1e-9 * gram.diagonal(dim1=1, dim2=2).sum(dim=1).clamp(min=1e-12)
+    gram = gram + ridge[:, None, None] * torch.eye(f.shape[-1], dtype=f.dtype, device=f.device)
+    rhs = (fw * t.double()[..., None]).sum(dim=1)
+    return torch.linalg.solve(gram, rhs)
+
+
+def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, state: dict | None,
+                 keep: torch.Tensor, lad: bool = False) -> torch.Tensor:
+    """IRLS weights ``psi(r) / r`` of the current phase: (M, n) float64.
+
+    ``lad``: ``1 / max(|r|, median |r|)`` (absolute loss, quadratic below the median residual).
+    Warm start (``state is None``): 1 for the ``keep`` smallest squared residuals of each copy,
+    else 0 (a concentration step of least trimmed squares).
+    """
+    r = r.double()
+    if loss == "mse":
+        return m.double()
+    if lad:
+        ar = r.abs()
+        floor = torch.where(m, ar, torch.full_like(ar, torch.nan)).nanmedian(dim=1).values
+        return torch.where(m, 1.0 / torch.maximum(ar, floor[:, None].clamp(min=1e-12)), torch.zeros_like(ar))
+    if state is None:
+        r2 = torch.where(m, r.square(), torch.full_like(r, torch.inf))
+        thresh = torch.sort(r2, dim=1).values.gather(1, (keep - 1).clamp(min=0)[:, None])
+        return (m & (r2 <= thresh)).double()
+    cut = {key: v.double() for key, v in state["torch"].items()}
+    ar = r.abs().clamp(min=1e-30)
+    if loss == "huber":
+        w = torch.clamp(cut["huber"] / ar, max=1.0)
+    else:
+        a, b, beta = cut["a"], cut["b"], cut["beta"]
+        w = torch.where(ar <= a, torch.ones_like(r),
+                        torch.where(ar <= b, a * torch.tanh(beta * (b - ar)) / ar, torch.zeros_like(r)))
+    return torch.where(m, w, torch.zeros_like(w))
+
+
+def _robust_loss(r: torch.Tensor, m: torch.Tensor, loss: str, cut: dict) -> torch.Tensor:
+    """Sum over each copy's training points of its loss: (M,) tensor.
+
+    ``cut`` holds per-copy ``a``, ``b``, ``beta`` and ``huber`` as (M, 1) tensors.
+    """
+    if loss == "mse":
+        rho = 0.5 * r.square()
+    elif loss == "huber":
+        # Huber's rho with cut-off delta: delta^2 * huber_1(r / delta)
+        rho = torch.nn.functional.huber_loss(r / cut["huber"], torch.zeros_like(r), reduction="none",
+                                             delta=1.0) * cut["huber"] ** 2
+    else:
+        a, b, beta = cut["a"], cut["b"], cut["beta"]
+        ar = torch.minimum(r.abs(), b)
+        tail = 0.5 * a.square() + (a / beta) * (_logcosh(beta * (b - a)) - _logcosh(beta * (b - ar)))
+        rho = torch.where(r.abs() <= a, 0.5 * r.square(), tail)
+    return torch.where(m, rho, torch.zeros_like(rho)).sum(dim=1)
+
+
+def _logcosh(x: torch.Tensor) -> torch.Tensor:
+    """Numerically stable ln cosh(x)."""
+    x = x.abs()
+    return x + torch.nn.functional.softplus(-2.0 * x) - np.log(2.0)
+
+
+@torch.no_grad()
+def _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device) -> dict:
+    """Held-out residuals, noise scale with bootstrap bound, and shrinking cut-offs per chart.
+
+    ``cut`` (C,) holds the previous rejection points ``b`` and is updated in place so that they
+    never grow.
+    """
+    n_charts, n_max = valid.shape
+    k = settings.n_folds + 1
+    pred = nets(x).reshape(n_charts, k, n_max).double().cpu().numpy()
+    z = t.reshape(n_charts, k, n_max)[:, 0].double().cpu().numpy()
+    heldout = np.take_along_axis(pred[:, 1:], fold[:, None], axis=1)[:, 0]
+    residual = np.where(valid, z - heldout, np.nan)
+    const = settings.constants
+    sigma = np.empty(n_charts)
+    sigma_upper = np.empty(n_charts)
+    for c in range(n_charts):
+        sigma[c], sigma_upper[c] = robust_scale(residual[c, valid[c]], settings.q, rng=rng,
+                                                cut=const.r, n_boot=settings.n_boot,
+                                                alpha=settings.alpha)
+    sigma_upper = np.maximum(sigma_upper, sigma_floor)
+    b = np.minimum(cut, const.r * sigma_upper)
+    cut[:] = b
+    scale = b / const.r
+    a = const.p * scale
+    beta = const.gamma / scale
+    rejected = np.array([np.mean(np.abs(residual[c, valid[c]]) > b[c]) for c in range(n_charts)])
+
+    def per_copy(v):
+        return torch.as_tensor(np.repeat(v, k), dtype=torch.float32, device=device)[:, None]
+
+    return {"residual": residual, "sigma": sigma, "sigma_upper": sigma_upper, "a": a, "b": b,
+            "beta": beta, "rejected": rejected,
+            "torch": {"a": per_copy(a), "b": per_copy(b), "beta": per_copy(beta),
+                      "huber": per_copy(HUBER_K * sigma)}}
