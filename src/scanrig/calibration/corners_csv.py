@@ -41,28 +41,14 @@ def read_corners_csv(path: str | Path, image_sizes: dict[str, tuple[int, int]],
     Raises
     ------
     FileFormatError
-        Missing file or column, a non-numeric value, or a camera without an image size.
+        Missing file or column, a row whose cells do not match the header, a non-numeric or
+        non-finite value, a weight that is not positive, or a camera without an image size.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "corners file not found")
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        header = reader.fieldnames or []
-        missing = [c for c in _REQUIRED if c not in header]
-        if missing:
-            raise FileFormatError(path, f"missing column(s) {missing}; expected header {','.join(COLUMNS)}")
-        rows = list(reader)
-    if not rows:
-        raise FileFormatError(path, "no detections in file")
-    images = [r["image"] for r in rows]
-    cams = [r["camera"] for r in rows]
-    try:
-        ids = np.array([int(r["point_id"]) for r in rows], dtype=np.int64)
-        uv = np.array([[float(r["x"]), float(r["y"])] for r in rows])
-        weight = np.array([float(r.get("weight") or 1.0) for r in rows])
-    except ValueError as exc:
-        raise FileFormatError(path, f"non-numeric value: {exc}") from None
+    rows = _read_rows(path)
+    images = [r["image"] for _, r in rows]
+    cams = [r["camera"] for _, r in rows]
+    ids, x, y, weight = zip(*(_numbers(path, line, r) for line, r in rows))
     names = camera_names or sorted(set(cams), key=natural_key)
     unknown = sorted(set(cams) - set(names))
     if unknown:
@@ -74,7 +60,45 @@ def read_corners_csv(path: str | Path, image_sizes: dict[str, tuple[int, int]],
     cam_index = {c: i for i, c in enumerate(names)}
     shot_index = {s: i for i, s in enumerate(shots)}
     return Observations(np.array([cam_index[c] for c in cams]), np.array([shot_index[s] for s in images]),
-                        ids, uv, weight, names, shots, {c: tuple(image_sizes[c]) for c in names})
+                        np.array(ids, dtype=np.int64), np.column_stack([x, y]), np.array(weight), names, shots,
+                        {c: tuple(image_sizes[c]) for c in names})
+
+
+def _read_rows(path: Path) -> list[tuple[int, dict]]:
+    """The data rows, each with its line number; every row must have the header's cells."""
+    if not path.is_file():
+        raise FileFormatError(path, "corners file not found")
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            header = reader.fieldnames or []
+            missing = [c for c in _REQUIRED if c not in header]
+            if missing:
+                raise FileFormatError(path, f"missing column(s) {missing}; expected header {','.join(COLUMNS)}")
+            rows = [(reader.line_num, row) for row in reader]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise FileFormatError(path, f"not a UTF-8 CSV file: {exc}") from None
+    ragged = [line for line, row in rows if None in row or None in row.values()]
+    if ragged:
+        raise FileFormatError(path, f"line {ragged[0]}: the cells do not match the header's {len(header)} columns")
+    if not rows:
+        raise FileFormatError(path, "no detections in file")
+    return rows
+
+
+def _numbers(path: Path, line: int, row: dict) -> tuple[int, float, float, float]:
+    """``point_id, x, y, weight`` of one row: numbers, finite pixel, positive finite weight."""
+    try:
+        point_id, x, y = int(row["point_id"]), float(row["x"]), float(row["y"])
+        weight = float(row.get("weight") or 1.0)
+    except ValueError as exc:
+        raise FileFormatError(path, f"line {line}: non-numeric value: {exc}") from None
+    if not np.isfinite(x) or not np.isfinite(y):
+        raise FileFormatError(path, f"line {line}: x, y must be finite pixel coordinates, got {x}, {y} "
+                                    "(leave undetected points out instead of writing NaN)")
+    if not 0.0 < weight < np.inf:
+        raise FileFormatError(path, f"line {line}: weight must be a positive finite number, got {weight}")
+    return point_id, x, y, weight
 
 
 def write_corners_csv(obs: Observations, path: str | Path) -> None:

@@ -64,24 +64,57 @@ class Relocation:
 
 
 def read_known_points(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Read ``known_points.csv``: names, world points (N, 3) metres, pixels (N, 2)."""
+    """Read ``known_points.csv``.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    names : list of str
+    p_world : ndarray of shape (N, 3)
+        World points, metres.
+    uv : ndarray of shape (N, 2)
+        Their pixels.
+
+    Raises
+    ------
+    FileFormatError
+        Missing file or column, a row whose cells do not match the header, a non-numeric or
+        non-finite value, or fewer than :data:`MIN_POINTS` points.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(path, "known points file not found")
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in ("point", "x", "y", "z", "u", "v") if c not in (reader.fieldnames or [])]
-        if missing:
-            raise FileFormatError(path, f"missing column(s) {missing}; expected header point,x,y,z,u,v")
-        rows = list(reader)
     try:
-        xyz = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows]).reshape(-1, 3)
-        uv = np.array([[float(r["u"]), float(r["v"])] for r in rows]).reshape(-1, 2)
-    except ValueError as exc:
-        raise FileFormatError(path, f"non-numeric value: {exc}") from None
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            header = reader.fieldnames or []
+            missing = [c for c in ("point", "x", "y", "z", "u", "v") if c not in header]
+            if missing:
+                raise FileFormatError(path, f"missing column(s) {missing}; expected header point,x,y,z,u,v")
+            rows = [(reader.line_num, row) for row in reader]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise FileFormatError(path, f"not a UTF-8 CSV file: {exc}") from None
+    ragged = [line for line, row in rows if None in row or None in row.values()]
+    if ragged:
+        raise FileFormatError(path, f"line {ragged[0]}: the cells do not match the header's {len(header)} columns")
+    values = np.array([_point_values(path, line, row) for line, row in rows]).reshape(-1, 5)
     if len(rows) < MIN_POINTS:
         raise FileFormatError(path, f"{len(rows)} known points; at least {MIN_POINTS} are needed")
-    return [r["point"] for r in rows], xyz, uv
+    return [row["point"] for _, row in rows], values[:, :3].copy(), values[:, 3:].copy()
+
+
+def _point_values(path: Path, line: int, row: dict) -> list[float]:
+    """``x, y, z, u, v`` of one row of ``known_points.csv``, checked to be finite numbers."""
+    try:
+        values = [float(row[c]) for c in "xyzuv"]
+    except ValueError as exc:
+        raise FileFormatError(path, f"line {line}: non-numeric value: {exc}") from None
+    if not np.all(np.isfinite(values)):
+        raise FileFormatError(path, f"line {line}: x, y, z, u, v must be finite numbers, got {values}")
+    return values
 
 
 def relocate_camera(camera: Camera, p_world: np.ndarray, uv: np.ndarray, sigma_px: float | None = None) -> Relocation:
@@ -100,8 +133,9 @@ def relocate_camera(camera: Camera, p_world: np.ndarray, uv: np.ndarray, sigma_p
     """
     import cv2
 
-    p_world = np.asarray(p_world, dtype=np.float64)
-    uv = np.asarray(uv, dtype=np.float64)
+    # contiguous copies: OpenCV rejects non-contiguous arrays such as column slices
+    p_world = np.ascontiguousarray(p_world, dtype=np.float64)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
     if p_world.ndim != 2 or p_world.shape[1] != 3 or uv.shape != (len(p_world), 2):
         raise InputError(f"p_world must be (N, 3) and uv (N, 2) with the same N, got {p_world.shape}, {uv.shape}")
     if len(p_world) < MIN_POINTS:

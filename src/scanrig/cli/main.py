@@ -23,6 +23,8 @@ from scanrig.errors import InputError, ScanrigError
 #: Verbs in pipeline order for ``--help``; discovered verbs not listed here follow alphabetically.
 VERB_ORDER = ("simulate", "calibrate", "relocate", "detect", "reconstruct", "filter", "scan",
               "evaluate", "report", "design", "export", "demo")
+#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
+INTERRUPTED = 130
 ISSUES_HINT = "this is a bug in scanrig; please report it with the command line and the traceback above"
 
 
@@ -60,19 +62,39 @@ def build_app() -> typer.Typer:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status instead of raising ``SystemExit``."""
+    """Run the command line; returns the exit status instead of raising ``SystemExit``.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after ``scanrig``; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        0 success (and ``--help``, ``--version``); 2 bad input, reported in one ``error:`` line;
+        1 internal failure; 130 interrupted.
+    """
     app = build_app()
     try:
-        # Standalone mode: typer reports its own usage errors (exit 2) and --help/--version (0).
-        app(args=argv, prog_name="scanrig", standalone_mode=True)
+        # Not standalone: usage errors reach this function, which reports them in one line.
+        status = app(args=argv, prog_name="scanrig", standalone_mode=False)
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except typer.TyperException as exc:
+        # Typer's usage errors (unknown option, missing argument, bad value); with no arguments
+        # at all the "error" is the help, already printed (typer itself tells it by name).
+        if type(exc).__name__ != "NoArgsIsHelpError":
+            typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
+            ctx = getattr(exc, "ctx", None)
+            if ctx is not None:
+                typer.echo(f"try '{ctx.command_path} --help'", err=True)
+        return 2
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         return 2
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        return 130
+    except (KeyboardInterrupt, typer.Abort):
+        status = INTERRUPTED
     except ScanrigError as exc:
         typer.echo(f"error: {exc}", err=True)
         return 1
@@ -80,7 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         traceback.print_exc()
         typer.echo(f"internal error: {ISSUES_HINT}", err=True)
         return 1
-    return 0
+    # Typer turns Ctrl-C inside a verb into ``Exit(130)``, which it returns here; no verb exits 130 itself.
+    if status == INTERRUPTED:
+        typer.echo("interrupted", err=True)
+    return status if isinstance(status, int) else 0
 
 
 def run() -> None:

@@ -18,7 +18,7 @@ def command(
     Planar targets give board.svg; the cube gives face0.svg .. face5.svg and cube_net.svg.
     Print at 100 % and check the 50 mm scale bar with a ruler.
 
-    Example: scanrig target print SESSION/target.toml --out prints
+    Example: scanrig target print demo_session/target.toml --out prints
     """
     from scanrig.errors import InputError
     from scanrig.targets import load_target
@@ -26,6 +26,9 @@ def command(
 
     if action != "print":
         raise InputError(f"action must be 'print', got {action!r}")
+    existing = next(p for p in (out, *out.parents) if p.exists())
+    if not existing.is_dir():
+        raise InputError(f"--out {out}: expected a folder for the print files, but {existing} is a file")
     target = load_target(target_file)
     for path in write_print_files(target, out):
         typer.echo(str(path))

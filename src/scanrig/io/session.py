@@ -31,7 +31,8 @@ _SESSION_KEYS = ("cameras", "laser_color", "laser_mode", "target", "seed", "crea
 
 def natural_key(text: str):
     """Sort key that orders embedded numbers numerically: ``cam2`` before ``cam10``."""
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]
+    # isdecimal, not isdigit: "²" is a digit that int() refuses; \d matches exactly the decimals
+    return [int(part) if part.isdecimal() else part for part in re.split(r"(\d+)", text)]
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,9 @@ class Session:
         cams = doc.get("cameras")
         if cams is not None and (not isinstance(cams, list) or not all(isinstance(c, str) for c in cams)):
             raise FileFormatError(path, f"cameras must be a list of folder names, got {cams!r}")
+        if cams is not None and len(set(cams)) != len(cams):
+            duplicated = sorted({c for c in cams if cams.count(c) > 1})
+            raise FileFormatError(path, f"cameras must be unique, duplicated: {duplicated}")
         return doc
 
     # --- cameras and images --------------------------------------------------------------------

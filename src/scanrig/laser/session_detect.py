@@ -51,6 +51,8 @@ class DetectOptions:
             raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.color not in LASER_COLORS:
             raise InputError(f"color must be one of {LASER_COLORS}, got {self.color!r}")
+        if not self.k_detect > 0:
+            raise InputError(f"k_detect must be a positive number of noise sigma, got {self.k_detect!r}")
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),

@@ -136,7 +136,12 @@ def load_truth_surface(truth_dir: str | Path) -> SurfaceDistance:
         raise FileFormatError(folder, "no true meshes (*.ply) found; --truth must be a simulator truth/ folder")
     vertices, faces, offset = [], [], 0
     for path in paths:
-        mesh = trimesh.load(path, force="mesh", process=False)
+        try:
+            mesh = trimesh.load(path, force="mesh", process=False)
+        except Exception as exc:  # noqa: BLE001 - trimesh raises many types for broken files
+            raise FileFormatError(path, f"cannot read mesh: {exc}") from None
+        if not len(mesh.faces):
+            raise FileFormatError(path, "mesh file holds no triangles")
         vertices.append(np.asarray(mesh.vertices, np.float64))
         faces.append(np.asarray(mesh.faces, np.int64) + offset)
         offset += len(mesh.vertices)

@@ -162,9 +162,7 @@ class ScanStore:
         FileFormatError
             If there is no manifest, or a line other than the last is corrupt.
         """
-        manifest = Path(root) / "scan" / MANIFEST_NAME
-        if not manifest.is_file():
-            raise FileFormatError(manifest, "no scan manifest to resume (start the scan without --resume)")
+        manifest = _existing_manifest(root)
         records, valid_bytes = _read_log(manifest)
         state = _replay(records, manifest)
         store = cls(Path(root), state)
@@ -266,10 +264,16 @@ def read_state(root: str | Path) -> ScanState:
     FileFormatError
         If there is no manifest, or a line other than the last is corrupt.
     """
+    manifest = _existing_manifest(root)
+    return _replay(_read_log(manifest)[0], manifest)
+
+
+def _existing_manifest(root: str | Path) -> Path:
+    """Path of a session's scan manifest; FileFormatError if there is none."""
     manifest = Path(root) / "scan" / MANIFEST_NAME
     if not manifest.is_file():
         raise FileFormatError(manifest, "no scan manifest to resume (start the scan without --resume)")
-    return _replay(_read_log(manifest)[0], manifest)
+    return manifest
 
 
 def _read_log(path: Path) -> tuple[list[dict], int]:
@@ -299,29 +303,36 @@ def _parse_line(raw: bytes) -> dict | None:
 
 
 def _replay(records: list[dict], path: Path) -> ScanState:
-    if not records or records[0].get("kind") != "start":
+    if not records or not isinstance(records[0], dict) or records[0].get("kind") != "start":
         raise FileFormatError(path, "the first record must be the scan's start record (a scan killed while "
                                     "starting: delete the scan folder and start again)")
     start = records[0]
     if start.get("format_version") != FORMAT_VERSION:
         raise FileFormatError(path, f"format_version must be {FORMAT_VERSION}, got {start.get('format_version')!r}")
-    state = ScanState(start["config"], start["cameras"])
-    for i, rec in enumerate(records[1:], start=2):
-        kind = rec.get("kind")
-        if kind == "pass":
-            state.passes.append(PassRecord(rec["pass"], [_beam_from_json(b) for b in rec["beams"]],
-                                           np.asarray(rec["aims_m"], dtype=np.float64).reshape(-1, 3),
-                                           rec["rng_after"], rec["first_frame"]))
-        elif kind == "frame":
-            if rec["index"] != len(state.frames) or rec["index"] >= len(state.beams):
-                raise FileFormatError(path, f"record {i}: frame {rec['frame']} is out of sequence")
-            state.frames.append(rec["frame"])
-        elif kind == "done":
-            state.finished = rec["reason"]
-        elif kind == "dark":
-            state.has_dark = True
-        else:
-            raise FileFormatError(path, f"record {i}: unknown kind {kind!r}")
+    i = 1
+    try:
+        state = ScanState(dict(start["config"]), [str(c) for c in start["cameras"]])
+        for i, rec in enumerate(records[1:], start=2):
+            kind = rec.get("kind")
+            if kind == "pass":
+                state.passes.append(PassRecord(rec["pass"], [_beam_from_json(b) for b in rec["beams"]],
+                                               np.asarray(rec["aims_m"], dtype=np.float64).reshape(-1, 3),
+                                               rec["rng_after"], rec["first_frame"]))
+            elif kind == "frame":
+                if rec["index"] != len(state.frames) or rec["index"] >= len(state.beams):
+                    raise FileFormatError(path, f"record {i}: frame {rec['frame']} is out of sequence")
+                state.frames.append(rec["frame"])
+            elif kind == "done":
+                state.finished = rec["reason"]
+            elif kind == "dark":
+                state.has_dark = True
+            else:
+                raise FileFormatError(path, f"record {i}: unknown kind {kind!r}")
+    except FileFormatError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        # A checksummed record of another shape: written by another scanrig version or edited by hand.
+        raise FileFormatError(path, f"record {i}: malformed record ({type(exc).__name__}: {exc})") from None
     return state
 
 

@@ -130,14 +130,14 @@ def _object(table, index: int, materials: dict, path: Path) -> SceneObject:
     if shape == "mesh":
         params = ("file", "scale")
         required = ("file",)
-    elif shape in primitives.SHAPES:
+    elif isinstance(shape, str) and shape in primitives.SHAPES:
         sig = inspect.signature(primitives.SHAPES[shape]).parameters.values()
         params = tuple(p.name for p in sig)
         required = tuple(p.name for p in sig if p.default is inspect.Parameter.empty)
     else:
         raise FileFormatError(path, f"{where}: shape must be one of {sorted(primitives.SHAPES) + ['mesh']}, got {shape!r}")
     check_keys(table, _OBJECT_COMMON + params, required, path, where)
-    if table["material"] not in materials:
+    if not isinstance(table["material"], str) or table["material"] not in materials:
         raise FileFormatError(path, f"{where}: material {table['material']!r} is not defined; "
                                     f"defined: {sorted(materials)}")
     args = {k: table[k] for k in params if k in table}

@@ -9,6 +9,7 @@ axis pointing forward, like its own optical axis. All board points lie in z = 0.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -326,10 +327,18 @@ def _check_grid(value, name: str, minimum: int) -> None:
         raise InputError(f"{name} must be two integers >= {minimum} (columns, rows), got {value!r}")
 
 
+def _finite(value) -> bool:
+    """Whether a number is finite as a float (a TOML integer beyond float range is not)."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def check_length(value, name: str, allow_zero: bool = False) -> None:
     """Raise :class:`InputError` naming ``name`` unless ``value`` is a finite positive (or zero) number."""
     ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool) \
-        and np.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+        and _finite(value) and (value >= 0 if allow_zero else value > 0)
     if not ok:
         kind = "non-negative" if allow_zero else "positive"
         raise InputError(f"{name} must be a {kind} length in metres, got {value!r}")

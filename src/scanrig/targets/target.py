@@ -174,7 +174,7 @@ def cube(edge_m=0.2, squares=7, square_m=0.025, marker_m=0.01875, dictionary="DI
     names = list(CUBE_FACES)
     if isinstance(faces, str) or not isinstance(faces, (list, tuple)):
         raise InputError(f"faces must be a list of face names among {names}, got {faces!r}")
-    unknown = [f for f in faces if f not in CUBE_FACES]
+    unknown = [f for f in faces if not isinstance(f, str) or f not in CUBE_FACES]
     if unknown or not faces or len(set(faces)) != len(faces):
         raise InputError(f"faces must be distinct names among {names}, got {list(faces)!r}")
     if not (isinstance(squares, (int, np.integer)) and not isinstance(squares, bool) and squares >= 2):

@@ -73,7 +73,7 @@ def target_from_table(table: dict, path: Path) -> Target:
     """Build a target from a parsed ``target.toml`` table (``path`` only names it in errors)."""
     check_keys(table, ("kind",) + _all_fields(), ("kind",), path, "target")
     kind = table["kind"]
-    if kind not in _KINDS:
+    if not isinstance(kind, str) or kind not in _KINDS:
         raise FileFormatError(path, f"target: kind must be one of {list(TARGET_KINDS)}, got {kind!r}")
     build, required, optional = _KINDS[kind]
     fields = {k: v for k, v in table.items() if k != "kind"}
