@@ -25,6 +25,7 @@ _EXPORTS = {
     "triangulate": "scanrig.geometry.triangulation",
     "detect_spots": "scanrig.laser.spots",
     "detect_stripe": "scanrig.laser.stripes",
+    "to_open3d": "scanrig.exports",
     "ScanrigError": "scanrig.errors",
     "InputError": "scanrig.errors",
 }

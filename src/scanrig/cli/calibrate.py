@@ -23,7 +23,7 @@ def command(
     initialises without user input, runs one robust bundle adjustment over all intrinsics and
     poses, and reports RMS, parameter sigmas, rejected outliers and an odd/even cross-validation.
 
-    Example: scanrig calibrate SESSION --model opencv5
+    Example: scanrig calibrate demo_session --model opencv5
     """
     from rich.progress import Progress
 

@@ -22,13 +22,14 @@ def command(
     Writes, beside the input, surface.ply (one vertex per input point, in input order: x, y, z
     = denoised position, inlier 0/1, score, residual in metres) and mesh.ply (the fitted surface).
 
-    Example: scanrig filter session/points.ply --q 0.25 --seed 1
+    Example: scanrig filter demo_session/points.ply --q 0.25 --seed 1
     """
     import numpy as np
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from scanrig.errors import InputError
-    from scanrig.io.ply import read_points, write_ply
+    from scanrig.io.filter_files import write_filter_files
+    from scanrig.io.ply import read_points
     from scanrig.surface.filter import filter_points
     from scanrig.surface.hampel import check_q
     from scanrig.surface.meshing import mesh_from_result
@@ -51,13 +52,6 @@ def command(
     header = [f"scanrig filter {points.name} --q {q} --seed {seed} --device {device} "
               f"--architecture {architecture} --max-chart-points {max_chart_points}",
               f"seed {seed}", "units m"]
-    out = points.parent
-    write_ply(out / "surface.ply",
-              {"x": result.denoised[:, 0], "y": result.denoised[:, 1], "z": result.denoised[:, 2],
-               "inlier": result.inlier.astype(np.uint8), "score": result.score.astype(np.float32),
-               "residual": result.residual},
-              comments=header + ["fields: x y z denoised (m); inlier 0/1; score |r|/sigma; residual (m)"])
-    write_ply(out / "mesh.ply", {"x": mesh_vertices[:, 0], "y": mesh_vertices[:, 1], "z": mesh_vertices[:, 2]},
-              faces=faces, comments=header)
+    surface_path, mesh_path = write_filter_files(points.parent, result, mesh_vertices, faces, header)
     typer.echo(f"{int(result.inlier.sum())} of {len(xyz)} points kept ({len(result.charts)} charts); "
-               f"wrote {out / 'surface.ply'} and {out / 'mesh.ply'} ({len(faces)} triangles)")
+               f"wrote {surface_path} and {mesh_path} ({len(faces)} triangles)")

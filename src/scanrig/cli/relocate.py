@@ -19,7 +19,7 @@ def command(
     Intrinsics stay as calibrated. Prints the pose change and its uncertainty and whether the
     change is significant (> 3 sigma).
 
-    Example: scanrig relocate SESSION --camera cam1 --points SESSION/known_points.csv
+    Example: scanrig relocate demo_session --camera cam1 --points demo_session/survey/cam1.csv
     """
     import datetime
 

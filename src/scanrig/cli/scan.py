@@ -7,10 +7,6 @@ from typing import Annotated
 
 import typer
 
-#: Side stations of a simulated scan: azimuths (degrees) and elevation (degrees) around the scene.
-SIM_SIDE_AZIMUTHS_DEG = (0.0, 90.0, 180.0, 270.0)
-SIM_SIDE_ELEVATION_DEG = 25.0
-
 
 def command(
     session: Annotated[Path, typer.Argument(help="Session folder to scan into (created if missing).")],
@@ -114,26 +110,18 @@ def _rig(session, sim, replay, camera, gcode, head_mm, n_cameras, sim_scale, set
 
     roi = _roi(settings["roi_mm"])
     if sim is not None:
-        from scanrig.sim import RigSpec, VirtualRig, default_rig, load_scene
+        from scanrig.sim import VirtualRig, load_scene
+        from scanrig.sim.scan_setup import LASER_COLOR, laser_stations, scene_rig, scene_roi
 
         scene = load_scene(sim)
-        spec = scene.rig
-        spec = RigSpec(**{**spec.__dict__, "width": round(spec.width * sim_scale),
-                          "height": round(spec.height * sim_scale), "fx_px": spec.fx_px * sim_scale})
-        rig = default_rig(n_cameras, scene.center_m, spec)
+        rig = scene_rig(scene, n_cameras, sim_scale)
         rig_path = session / "rig.toml"
         if not rig_path.exists():
             save_rig(rig, rig_path, comments=(f"true cameras of the simulated scene {sim!r} (no calibration)",))
-        centre, head = np.array(scene.center_m), np.array(scene.laser.head_m)
-        reach = np.linalg.norm(head - centre)
-        el = np.radians(SIM_SIDE_ELEVATION_DEG)
-        sides = [centre + reach * np.array([np.cos(a) * np.cos(el), np.sin(a) * np.cos(el), np.sin(el)])
-                 for a in np.radians(SIM_SIDE_AZIMUTHS_DEG)]
-        if roi is None:
-            roi = (tuple(centre - scene.radius_m), tuple(centre + scene.radius_m))
+        roi = scene_roi(scene) if roi is None else roi
         frames = SeededFrames(VirtualRig(scene, rig, np.random.default_rng(settings["seed"])), settings["seed"],
                               _n_grabbed(session) if resume else 0)
-        return frames, frames, load_rig(rig_path), _defaults(roi, [head, *sides]), "red"
+        return frames, frames, load_rig(rig_path), _defaults(roi, laser_stations(scene)), LASER_COLOR
     if replay is not None:
         from scanrig.scan.replay import ReplayRig
         from scanrig.scan.store import read_state

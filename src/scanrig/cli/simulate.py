@@ -26,7 +26,7 @@ def command(
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
     identical files.
 
-    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --seed 1
+    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 6 --seed 1
     """
     import shlex
     import sys

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -46,6 +46,11 @@ class RigSpec:
             raise InputError("rig distance_m and fx_px must be positive")
         if len(self.dist) != 5:
             raise InputError(f"rig dist must hold 5 coefficients (k1 k2 p1 p2 k3), got {len(self.dist)}")
+
+    def scaled(self, factor: float) -> RigSpec:
+        """The same cameras with image size (rounded to whole pixels) and focal length times ``factor``."""
+        return replace(self, width=round(self.width * factor), height=round(self.height * factor),
+                       fx_px=self.fx_px * factor)
 
 
 def look_at(eye_m, target_m, up=(0.0, 0.0, 1.0)) -> RigidTransform:

@@ -12,6 +12,7 @@ Written files::
     truth/laser.csv                       beam origin, direction and fan axis of every frame
     truth/target_poses.csv                world_from_target of every calibration shot
     truth/scene.toml                      copy of the scene file
+    survey/<camera>.csv                   surveyed points (world x,y,z and pixels) for relocate
 
 Frames and calibration shots are rendered in worker processes (fork); each has its own random
 generator spawned from ``rng``, so the files do not depend on the number of workers.
@@ -37,6 +38,7 @@ from scanrig.sim.parallel import run_indexed
 from scanrig.sim.render import CameraView
 from scanrig.sim.rigs import default_rig
 from scanrig.sim.scene import Scene
+from scanrig.sim.survey import write_survey
 
 #: Progress callback: (stage, done, total).
 Progress = Callable[[str, int, int], None]
@@ -108,7 +110,7 @@ def simulate_session(
         raise InputError(f"{out}: output session folder is an existing file")
     progress = progress or (lambda stage, done, total: None)
     provenance = dict(provenance or {})
-    bank_rngs, frame_rngs, dark_rng, calib_rng = _spawn(rng, len(rig), n_frames)
+    bank_rngs, frame_rngs, dark_rng, calib_rng, survey_rng = _spawn(rng, len(rig), n_frames)
 
     truth = out / "truth"
     for folder in [truth / "meshes"] + [out / "scan" / name for name in rig.names]:
@@ -133,6 +135,7 @@ def simulate_session(
     truth_rows = _render_frames(out, scene, views, poses, stems, frame_rngs, workers, progress)
 
     _write_truth(out, scene, rig, poses, stems, truth_rows, scene_source, provenance)
+    write_survey(out, scene, rig, survey_rng)
     settings = {"cameras": rig.names, "laser_mode": mode, "laser_color": "red",
                 "created_by": "scanrig simulate", **{k: v for k, v in provenance.items() if k == "seed"}}
     if with_calibration:
@@ -149,8 +152,8 @@ def simulate_session(
 def _spawn(rng: np.random.Generator, n_cams: int, n_frames: int):
     banks = rng.spawn(n_cams)
     frames = rng.spawn(n_frames)
-    dark, calib = rng.spawn(2)
-    return banks, frames, dark, calib
+    dark, calib, survey = rng.spawn(3)   # children are keyed by index: adding one keeps the others
+    return banks, frames, dark, calib, survey
 
 
 def _render_frames(out, scene, views, poses, stems, frame_rngs, workers, progress) -> list:

@@ -8,7 +8,9 @@ The influence function is the one of Chen & Jain's robust back-propagation, with
            = 0                                   |r| > b
 
 Its integral ``rho`` (the loss that back-propagation minimises) has a closed form, see
-:func:`hampel_rho`. The cut-offs follow the noise scale: ``a = p sigma``, ``b = r sigma``,
+:func:`hampel_rho`. ``psi``, ``rho`` and the IRLS weight are written once and take numpy arrays or
+torch tensors alike (the training loop of :mod:`scanrig.surface.robust_fit` passes tensors, and
+autograd runs through them); torch is never imported for numpy input. The cut-offs follow the noise scale: ``a = p sigma``, ``b = r sigma``,
 ``beta = gamma / sigma`` with ``(p, r, gamma)`` from the Hampel-Rousseeuw-Ronchetti optimal
 tanh estimator (``r = 4, k = 4.5``: ``p = 1.634, gamma = 0.915``, 95.6 % Gaussian efficiency).
 
@@ -24,12 +26,15 @@ Formulas and constants: ``/shared/reference/robust-filtering.md`` sections 1.2-1
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import ndtr, ndtri
 
 from scanrig.errors import InputError
+
+_TINY = 1e-30  # divisor floor of psi(r) / r; smaller residuals lie inside ``a`` and have weight 1
 
 
 @dataclass(frozen=True)
@@ -66,58 +71,73 @@ def check_q(q: float) -> float:
     return q
 
 
-def hampel_psi(r: np.ndarray, a, b, beta) -> np.ndarray:
+def hampel_psi(r, a, b, beta):
     """Influence function psi(r) of Chen & Jain's Hampel tanh loss.
 
     Parameters
     ----------
-    r : (...) float array
+    r : (...) float array or torch tensor
         Residuals ``z - zhat`` in metres.
-    a, b : float or array broadcastable to ``r``
+    a, b : float, array or tensor broadcastable to ``r``
         Cut-offs in metres, ``0 < a < b``.
-    beta : float or array broadcastable to ``r``
+    beta : float, array or tensor broadcastable to ``r``
         Redescent slope in 1/metre.
 
     Returns
     -------
-    (...) float array
+    (...) float array, or tensor for a tensor ``r``
         psi(r) in metres.
     """
-    r = np.asarray(r, dtype=float)
-    ar = np.abs(r)
-    mid = a * np.tanh(beta * (b - ar)) * np.sign(r)
-    return np.where(ar <= a, r, np.where(ar <= b, mid, 0.0))
+    xp, r = _namespace(r)
+    ar = xp.abs(r)
+    mid = a * xp.tanh(beta * (b - ar)) * xp.sign(r)
+    return xp.where(ar <= a, r, xp.where(ar <= b, mid, 0.0))
 
 
-def hampel_rho(r: np.ndarray, a, b, beta) -> np.ndarray:
+def hampel_rho(r, a, b, beta):
     """Loss rho(r) = integral of psi from 0 to r (closed form), in square metres.
 
     ``rho = r^2/2`` for ``|r| <= a``; ``a^2/2 + (a/beta) ln(cosh(beta (b-a)) / cosh(beta (b-|r|)))``
     for ``a < |r| <= b``; constant beyond ``b``. Parameters as in :func:`hampel_psi`.
     """
-    r = np.asarray(r, dtype=float)
-    ar = np.minimum(np.abs(r), b)
-    tail = 0.5 * a**2 + (a / beta) * (_logcosh(beta * (b - a)) - _logcosh(beta * (b - ar)))
-    return np.where(np.abs(r) <= a, 0.5 * r**2, tail)
+    xp, r = _namespace(r)
+    ar = xp.abs(r)
+    tail = 0.5 * a**2 + (a / beta) * (_logcosh(beta * (b - a)) - _logcosh(beta * (b - ar.clip(max=b))))
+    return xp.where(ar <= a, 0.5 * r**2, tail)
 
 
-def hampel_weight(r: np.ndarray, a, b, beta) -> np.ndarray:
-    """IRLS weight ``psi(r) / r`` in [0, 1]: 1 inside ``a``, 0 beyond ``b``."""
-    r = np.asarray(r, dtype=float)
-    ar = np.abs(r)
-    safe = np.where(ar > 0, ar, 1.0)
-    return np.where(ar <= a, 1.0, np.where(ar <= b, a * np.tanh(beta * (b - ar)) / safe, 0.0))
+def hampel_weight(r, a, b, beta):
+    """IRLS weight ``psi(r) / r`` in [0, 1]: 1 inside ``a``, 0 beyond ``b``. Parameters as in :func:`hampel_psi`."""
+    xp, r = _namespace(r)
+    ar = xp.abs(r)
+    mid = a * xp.tanh(beta * (b - ar)) / ar.clip(min=_TINY)  # r = 0 takes the first branch (weight 1)
+    return xp.where(ar <= a, 1.0, xp.where(ar <= b, mid, 0.0))
+
+
+def _namespace(r):
+    """``(module, r)``: torch and ``r`` for a torch tensor, else numpy and ``r`` as a float array.
+
+    The formulas above use only functions both modules name alike (``abs``, ``tanh``, ``sign``,
+    ``where``, the ``clip`` method), so each is written once for both.
+    """
+    if type(r).__module__.startswith("torch"):
+        import torch
+
+        return torch, r
+    return np, np.asarray(r, dtype=float)
+
+
+def _logcosh(x):
+    """Numerically stable ln cosh(x) = |x| + ln(1 + exp(-2|x|)) - ln 2, of an array or a tensor."""
+    xp, x = _namespace(x)
+    x = xp.abs(x)
+    softplus = np.log1p(np.exp(-2.0 * x)) if xp is np else xp.nn.functional.softplus(-2.0 * x)
+    return x + softplus - math.log(2.0)
 
 
 def _gauss_pdf(x):
     """Standard normal density."""
     return np.exp(-0.5 * x * x) / np.sqrt(2.0 * np.pi)
-
-
-def _logcosh(x):
-    """Numerically stable ln cosh(x)."""
-    x = np.abs(x)
-    return x + np.log1p(np.exp(-2.0 * x)) - np.log(2.0)
 
 
 def trimmed_consistency(q: float) -> float:
@@ -137,9 +157,9 @@ def trimmed_scale(residuals: np.ndarray, q: float) -> float:
     Parameters
     ----------
     residuals : (n,) float array
-        Residuals in metres (held-out residuals when the model is flexible).
+        Residuals in metres.
     q : float
-        Tolerated fraction of bad data, in (0, 0.5].
+        Breakdown point: the fraction of residuals left out, in (0, 0.5].
 
     Returns
     -------

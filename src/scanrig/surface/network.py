@@ -103,7 +103,7 @@ class HeightFieldNets(torch.nn.Module):
         Parameters
         ----------
         uv : (n_models, n, 2) tensor
-            Normalised chart coordinates.
+            As in :meth:`features`.
 
         Returns
         -------

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from scanrig.errors import InputError
-from scanrig.surface.hampel import HampelConstants, check_q, robust_scale
+from scanrig.surface.hampel import HampelConstants, check_q, hampel_rho, hampel_weight, robust_scale
 from scanrig.surface.network import HeightFieldNets
 
 LOSSES = ("hampel", "mse", "huber")
@@ -324,13 +324,10 @@ def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, state: dict | None
         thresh = torch.sort(r2, dim=1).values.gather(1, (keep - 1).clamp(min=0)[:, None])
         return (m & (r2 <= thresh)).double()
     cut = {key: v.double() for key, v in state["torch"].items()}
-    ar = r.abs().clamp(min=1e-30)
     if loss == "huber":
-        w = torch.clamp(cut["huber"] / ar, max=1.0)
+        w = torch.clamp(cut["huber"] / r.abs().clamp(min=1e-30), max=1.0)
     else:
-        a, b, beta = cut["a"], cut["b"], cut["beta"]
-        w = torch.where(ar <= a, torch.ones_like(r),
-                        torch.where(ar <= b, a * torch.tanh(beta * (b - ar)) / ar, torch.zeros_like(r)))
+        w = hampel_weight(r, cut["a"], cut["b"], cut["beta"])
     return torch.where(m, w, torch.zeros_like(w))
 
 
@@ -346,17 +343,8 @@ def _robust_loss(r: torch.Tensor, m: torch.Tensor, loss: str, cut: dict) -> torc
         rho = torch.nn.functional.huber_loss(r / cut["huber"], torch.zeros_like(r), reduction="none",
                                              delta=1.0) * cut["huber"] ** 2
     else:
-        a, b, beta = cut["a"], cut["b"], cut["beta"]
-        ar = torch.minimum(r.abs(), b)
-        tail = 0.5 * a.square() + (a / beta) * (_logcosh(beta * (b - a)) - _logcosh(beta * (b - ar)))
-        rho = torch.where(r.abs() <= a, 0.5 * r.square(), tail)
+        rho = hampel_rho(r, cut["a"], cut["b"], cut["beta"])
     return torch.where(m, rho, torch.zeros_like(rho)).sum(dim=1)
-
-
-def _logcosh(x: torch.Tensor) -> torch.Tensor:
-    """Numerically stable ln cosh(x)."""
-    x = x.abs()
-    return x + torch.nn.functional.softplus(-2.0 * x) - np.log(2.0)
 
 
 @torch.no_grad()
