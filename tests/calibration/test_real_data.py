@@ -142,3 +142,36 @@ def test_caliscope_four_cameras_jointly(shared_data):
     d = d[np.isfinite(d)]
     print(f"caliscope neighbour distance {1000 * d.mean():.2f} ± {1000 * d.std():.2f} mm over {len(d)} pairs")
     assert abs(d.mean() - 0.054) < 0.001
+
+
+#: Stereo baseline of the MRPT pairs from OpenCV's own stereo calibration, in squares
+#: (../shared/data/mrpt-stereo-9x6/PROVENANCE.md); the corner noise of 0.2 px over 4 views
+#: leaves about 0.1 % on it.
+MRPT_BASELINE_SQUARES = 3.515
+
+
+def test_mrpt_four_pairs_converge_and_flag_what_they_cannot_determine(tmp_path):
+    """Only 4 views: the solve must converge and say which parameters stay uncertain."""
+    from scanrig.calibration.pipeline import detect_session
+    from scanrig.io.session import Session
+    from scanrig.targets import load_target
+    from tests.conftest import SHARED_DATA
+
+    src = SHARED_DATA / "mrpt-stereo-9x6"
+    if not src.is_dir():
+        pytest.skip("real data folder mrpt-stereo-9x6 is absent")
+    for side in ("left", "right"):
+        (tmp_path / "calibration" / side).mkdir(parents=True)
+        for img in sorted(src.glob(f"*_{side}.jpg")):
+            (tmp_path / "calibration" / side / img.name.replace(f"_{side}", "")).symlink_to(img)
+    (tmp_path / "target.toml").write_text('kind = "chessboard"\ninner_corners = [9, 6]\nsquare_m = 1.0\n')
+    target = load_target(tmp_path / "target.toml")
+    obs, not_found = detect_session(Session(tmp_path), target)
+    assert len(not_found) == 0                       # the board is found in all 8 images
+    result = calibrate(obs, target, "opencv5", cross_validate=False)
+    assert result.bundle.rms_px() < 0.3
+    rig = result.rig
+    baseline = np.linalg.norm(rig["left"].center_world - rig["right"].center_world)
+    assert baseline == pytest.approx(MRPT_BASELINE_SQUARES, rel=2e-3)
+    for name in ("left", "right"):                 # the 6th-order term is what 4 views leave open
+        assert any(w.startswith(f"camera '{name}': k3 is poorly determined") for w in result.warnings)
