@@ -103,6 +103,10 @@ def bench_triangulation(n, repeats):
 
     t_cv, p_cv = _best_time(cv2_pairs, repeats)
     t_fast, (p_fast, _) = _best_time(lambda: triangulate(rig, q, sigma_px=SIGMA_PX, refine=False), repeats)
+    # The reconstruction pipeline passes full pixel covariances (traces.parquet's cov_uu/uv/vv).
+    cov_px = np.zeros(q.shape[:2] + (2, 2))
+    cov_px[..., 0, 0] = cov_px[..., 1, 1] = SIGMA_PX**2
+    t_cov, (p_cov, _) = _best_time(lambda: triangulate(rig, q, cov_px=cov_px, refine=False), repeats)
     t_gn, (p_gn, _) = _best_time(lambda: triangulate(rig, q, sigma_px=SIGMA_PX, refine=True), 1)
     rig_d = ring_rig()
     q_d = observe(rig_d, p_true, rng, SIGMA_PX)
@@ -115,6 +119,7 @@ def bench_triangulation(n, repeats):
     rms_gn = _rms(p_gn - p_true)
     rows = [("cv2.triangulatePoints looped over 3 pairs, averaged (baseline)", t_cv, p_cv),
             ("scanrig closed form (refine=False), pinhole", t_fast, p_fast),
+            ("scanrig closed form (refine=False), pinhole, full pixel covariances (cov_px)", t_cov, p_cov),
             ("scanrig closed form + Gauss-Newton + exact covariance", t_gn, p_gn)]
     for name, t, p in rows:
         print(f"| {name} | {n / t / 1e6:.3f} | {t_cv / t:.2f} | {_rms(p - p_true) * 1e3:.4f} | "

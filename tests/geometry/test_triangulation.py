@@ -223,3 +223,72 @@ def test_bad_shapes_are_named():
         triangulate(rig, np.zeros((3, 5, 2)), dirs=np.ones((3, 5, 2)))
     with pytest.raises(InputError, match="rig must be a Rig or a non-empty sequence of Camera objects"):
         triangulate([], np.zeros((0, 5, 2)))
+
+
+def _reference_closed_form(rig, q, sigma, min_angle_rad):
+    """The weighted closed form written plainly with (N, 3, 3) stacks and LAPACK, for comparison."""
+    cams = rig.cameras
+    n = q.shape[1]
+    dirs = np.stack([cam.rays(qi)[1] for cam, qi in zip(cams, q)])
+    used = np.isfinite(dirs).all(axis=2) & np.isfinite(sigma) & (sigma > 0)
+    dirs = np.where(used[..., None], dirs, 0.0)
+    centers = np.array([cam.center_world for cam in cams])
+    focal = np.array([np.sqrt(cam.params[0] * cam.params[1]) for cam in cams])
+
+    def solve(w):
+        P = np.eye(3) - np.einsum("cni,cnj->cnij", dirs, dirs)  # (I - d dT) per view
+        A = np.einsum("cn,cnij->nij", w, P)
+        b = np.einsum("cn,cnij,cj->ni", w, P, centers)
+        ok = np.abs(np.linalg.det(A)) > 1e-12 * np.abs(np.trace(A, axis1=1, axis2=2) / 3) ** 3
+        A_inv = np.full_like(A, np.nan)
+        A_inv[ok] = np.linalg.inv(A[ok])
+        return np.einsum("nij,nj->ni", A_inv, b), A_inv
+
+    p0, _ = solve(used.astype(float))
+    t = np.einsum("cni,cni->cn", p0[None] - centers[:, None], dirs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = (focal[:, None] / (sigma * t)) ** 2
+    w = np.where(used & np.isfinite(w), w, 0.0)
+    p, cov = solve(w)
+    angles = []
+    for i in range(len(cams)):
+        for j in range(i + 1, len(cams)):
+            c = np.where(used[i] & used[j], np.einsum("ni,ni->n", dirs[i], dirs[j]), np.nan)
+            angles.append(np.arccos(np.clip(c, -1.0, 1.0)))
+    min_angle, max_angle = np.fmin.reduce(angles, axis=0), np.fmax.reduce(angles, axis=0)  # skip NaNs
+    q_hat = np.stack([cam.project(p) for cam in cams])
+    r2 = np.where(used, np.sum((q - q_hat) ** 2, axis=2), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi2 = np.sum(np.where(used, r2 / sigma**2, 0.0), axis=0)
+        residual_px = np.sqrt(r2.sum(axis=0) / used.sum(axis=0))
+    good = (used.sum(axis=0) >= 2) & np.isfinite(p).all(axis=1) & (max_angle >= min_angle_rad)
+    return p, cov, good, chi2, residual_px, min_angle, max_angle
+
+
+@pytest.mark.parametrize("model", ["pinhole", "opencv5"])
+def test_closed_form_equals_the_plain_normal_equations(model):
+    """The component arithmetic of the closed form equals the textbook formulas, field by field."""
+    rng = np.random.default_rng(19)
+    rig = ring_rig((-50.0, -10.0, 30.0, 70.0), model=model)
+    n = 3000
+    q = observe(rig, points_in_cube(rng, n), rng, SIGMA_PX)
+    q[rng.integers(0, 4, n), np.arange(n)] = np.nan  # a missing view each
+    q[:, :20] = np.nan
+    q[1, :20] = 300.0  # one view only
+    sigma = rng.uniform(0.1, 0.6, (4, n))
+    sigma[2, 20:40] = 0.0  # unusable detections
+    p, info = triangulate(rig, q, sigma_px=sigma, refine=False)
+    p_ref, cov_ref, good, chi2, residual_px, min_angle, max_angle = _reference_closed_form(
+        rig, q, sigma, triangulation_module.MIN_TRIANGULATION_ANGLE_RAD)
+    np.testing.assert_array_equal(info.ok, good)
+    assert good.sum() > 0.9 * n
+    np.testing.assert_allclose(p[good], p_ref[good], rtol=0, atol=1e-12)
+    scale = np.abs(cov_ref[good]).max(axis=(1, 2))[:, None, None]
+    np.testing.assert_allclose(info.cov[good] / scale, cov_ref[good] / scale, rtol=0, atol=1e-9)
+    sigma_ref = np.sqrt(np.linalg.eigvalsh(cov_ref[good])[:, -1])
+    np.testing.assert_allclose(info.sigma[good], sigma_ref, rtol=1e-9)
+    np.testing.assert_allclose(info.chi2[good], chi2[good], rtol=1e-9)
+    np.testing.assert_allclose(info.residual_px[good], residual_px[good], rtol=1e-9)
+    np.testing.assert_allclose(info.min_angle_rad, min_angle, rtol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(info.max_angle_rad, max_angle, rtol=1e-12, equal_nan=True)
+    assert np.isnan(p[~good]).all() and np.isnan(info.cov[~good]).all() and np.isnan(info.sigma[~good]).all()

@@ -268,8 +268,11 @@ class Camera:
             distortion, or non-finite input).
         """
         q = check_points(q, 2, "q")
-        xy_d = (q - self.params[2:4]) / self.params[:2]
-        return distortion.undistort(xy_d, self._dist_full)
+        x, y, converged = distortion.undistort_components(
+            q[:, 0], q[:, 1], self._dist_full, scale=tuple(float(c) for c in self.params[:4]))
+        xy = np.empty((x.shape[0], 2))
+        xy[:, 0], xy[:, 1] = x, y
+        return xy, converged
 
     def rays(self, q):
         """Lines of sight of pixels, in the world frame.
@@ -286,12 +289,45 @@ class Camera:
         dirs : ndarray of shape (N, 3)
             Unit directions (world); NaN where :meth:`unproject` did not converge.
         """
-        xy, _ = self.unproject(q)
-        world_from_cam = self.cam_from_world.inverse()
-        d_cam = np.empty((xy.shape[0], 3))
-        d_cam[:, :2] = xy
-        d_cam[:, 2] = 1.0
-        d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
-        dirs = d_cam @ world_from_cam.R.T
-        origins = np.broadcast_to(world_from_cam.t, dirs.shape).copy()
+        q = check_points(q, 2, "q")
+        dirs = np.empty((q.shape[0], 3))
+        self.ray_directions(q[:, 0], q[:, 1], dirs[:, 0], dirs[:, 1], dirs[:, 2])
+        origins = np.broadcast_to(self.center_world, dirs.shape).copy()
         return origins, dirs
+
+    def ray_directions(self, u: np.ndarray, v: np.ndarray, out_x: np.ndarray, out_y: np.ndarray,
+                       out_z: np.ndarray) -> None:
+        """World unit directions of the pixels ``(u, v)``, written component by component.
+
+        The array form of :meth:`rays` for callers that keep coordinates as separate arrays
+        (triangulation): ``u, v`` are ``(N,)`` float arrays of any strides, and the three
+        ``(N,)`` outputs receive the x, y and z components (NaN where :meth:`unproject` did not
+        converge, including non-finite pixels).
+        """
+        x, y, _ = distortion.undistort_components(
+            u, v, self._dist_full, scale=tuple(float(c) for c in self.params[:4]))
+        R = self.cam_from_world.R.T  # world_from_cam rotation
+        n = x.shape[0]
+        # d_world = R_wc [x, y, 1] / |[x, y, 1]|, on cache-sized blocks of the coordinate arrays.
+        block = min(max(n, 1), distortion.UNDISTORT_BLOCK)
+        inv_buf, t_buf, u_buf = np.empty(block), np.empty(block), np.empty(block)
+        outs = (out_x, out_y, out_z)
+        for start in range(0, n, block):
+            s = slice(start, min(start + block, n))
+            m = s.stop - start
+            xb, yb, inv, t, w = x[s], y[s], inv_buf[:m], t_buf[:m], u_buf[:m]
+            np.multiply(xb, xb, out=inv)
+            np.multiply(yb, yb, out=t)
+            inv += t
+            inv += 1.0
+            np.sqrt(inv, out=inv)
+            np.divide(1.0, inv, out=inv)
+            xb *= inv
+            yb *= inv
+            for k in range(3):
+                o = outs[k][s]
+                np.multiply(xb, R[k, 0], out=o)
+                np.multiply(yb, R[k, 1], out=w)
+                o += w
+                np.multiply(inv, R[k, 2], out=w)
+                o += w

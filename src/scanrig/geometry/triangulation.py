@@ -23,12 +23,13 @@ from enum import IntEnum
 import numpy as np
 
 from scanrig.errors import InputError, ShapeError
+from scanrig.geometry import distortion
 from scanrig.geometry.camera import Camera
 from scanrig.geometry.uncertainty import (
     information_matrix,
     inv_sym3,
     inv_sym3_components,
-    pixel_weights,
+    max_eigenvalue_sym3_components,
     sigma_from_covariance,
     sym3_from_components,
 )
@@ -153,90 +154,316 @@ def triangulate(
     if q.ndim != 3 or q.shape[0] != n_cams or q.shape[2] != 2:
         raise ShapeError(f"q_obs must have shape ({n_cams}, N, 2) for {n_cams} cameras, got {q.shape}")
     n = q.shape[1]
-    sigma_iso, W = _pixel_noise(sigma_px, cov_px, n_cams, n)
+    sigma_iso, cov = _pixel_noise(sigma_px, cov_px, n_cams, n)
     if dirs is not None and np.shape(dirs) != (n_cams, n, 3):
         raise ShapeError(f"dirs must have shape ({n_cams}, {n}, 3), got {np.shape(dirs)}")
-    parts = []
-    for start in range(0, max(n, 1), CHUNK_POINTS):
-        s = slice(start, start + CHUNK_POINTS)
-        parts.append(_triangulate_chunk(
-            cams, q[:, s], sigma_iso[:, s], None if W is None else W[:, s],
-            None if dirs is None else dirs[:, s], refine, min_angle_rad,
-        ))
-    p = np.concatenate([part[0] for part in parts])
-    fields = {
-        name: np.concatenate([getattr(part[1], name) for part in parts], axis=1 if name == "used" else 0)
-        for name in TriangulationInfo.__dataclass_fields__
-    }
-    return p, TriangulationInfo(**fields)
-
-
-def _triangulate_chunk(cams, q, sigma_iso, W, dirs, refine, min_angle_rad):
-    """:func:`triangulate` on a block of points (arguments already validated)."""
-    n_cams, n = q.shape[:2]
-    used = np.all(np.isfinite(q), axis=2) & np.isfinite(sigma_iso) & (sigma_iso > 0)
-    if dirs is None:
-        dirs = np.full((n_cams, n, 3), np.nan)
-        for i, cam in enumerate(cams):
-            _, dirs[i, used[i]] = cam.rays(q[i, used[i]])
-    used &= np.all(np.isfinite(dirs), axis=2)
-    dirs = np.where(used[..., None], dirs, 0.0)
-    centers = np.array([cam.center_world for cam in cams])
-    focal = np.array([np.sqrt(cam.params[0] * cam.params[1]) for cam in cams])
-
-    p, _, _ = intersect_rays(centers, dirs, used.astype(np.float64), with_inverse=False)
-    ranges = np.einsum("cni,cni->cn", p[None] - centers[:, None, :], dirs)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = (focal[:, None] / (sigma_iso * ranges)) ** 2
-    w = np.where(used & np.isfinite(w), w, 0.0)
-    p, cov_p, singular = intersect_rays(centers, dirs, w)
-
-    n_views = used.sum(axis=0)
-    min_angle, max_angle = _ray_angles(dirs, used)
-    reason = np.zeros(n, np.uint8)
-    reason[singular | ~(max_angle >= min_angle_rad)] = Reason.PARALLEL
-    reason[n_views < 2] = Reason.FEW_VIEWS
-    reason[(reason == 0) & _behind(cams, p, used)] = Reason.BEHIND
-    good = reason == 0
-
-    if refine:
-        if W is None:
-            W = _isotropic_weights(sigma_iso)
-        p[~good] = np.nan
-        p, q_hat, cov_p = _gauss_newton(cams, q, W, used, p, good)
-        diverged = good & ~np.all(np.isfinite(p), axis=1)
-        reason[diverged] = Reason.DIVERGED
-        reason[good & ~diverged & _behind(cams, p, used)] = Reason.BEHIND
-    else:
-        q_hat = np.stack([cam.project(p) for cam in cams])
-    good = reason == 0
-    r = np.where(used[..., None], q - q_hat, 0.0)
-    r2 = r[..., 0] ** 2 + r[..., 1] ** 2
-    if W is None:
-        chi2 = np.sum(np.where(used, r2 / sigma_iso**2, 0.0), axis=0)
-    else:
-        Wz = np.where(used[..., None, None], W, 0.0)
-        chi2 = np.sum(Wz[..., 0, 0] * r[..., 0] ** 2 + 2.0 * Wz[..., 0, 1] * r[..., 0] * r[..., 1]
-                      + Wz[..., 1, 1] * r[..., 1] ** 2, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        residual_px = np.sqrt(r2.sum(axis=0) / n_views)
-
-    p[~good] = np.nan
-    cov_p[~good] = np.nan
-    residual_px[~good] = np.nan
-    chi2[~good] = np.nan
+    # Outputs are allocated once and filled block by block.
+    p = np.empty((n, 3))
     info = TriangulationInfo(
-        cov=cov_p,
-        sigma=sigma_from_covariance(cov_p),
-        residual_px=residual_px,
-        chi2=chi2,
-        n_views=n_views.astype(np.uint8),
-        min_angle_rad=min_angle,
-        max_angle_rad=max_angle,
-        reason=reason,
-        used=used,
+        cov=np.empty((n, 3, 3)),
+        sigma=np.empty(n),
+        residual_px=np.empty(n),
+        chi2=np.empty(n),
+        n_views=np.empty(n, np.uint8),
+        min_angle_rad=np.empty(n),
+        max_angle_rad=np.empty(n),
+        reason=np.empty(n, np.uint8),
+        used=np.empty((n_cams, n), bool),
     )
+    rig_arrays = _RigArrays(cams)
+    for start in range(0, n, CHUNK_POINTS):
+        s = slice(start, min(start + CHUNK_POINTS, n))
+        sigma_s, W_s = (sigma_iso[:, s], None) if cov is None else _noise_from_cov(cov[:, s])
+        _triangulate_chunk(
+            cams, rig_arrays, q[:, s], sigma_s, W_s, None if dirs is None else dirs[:, s], refine, min_angle_rad,
+            p, info, s,
+        )
     return p, info
+
+
+class _RigArrays:
+    """Per-camera constants of a triangulation, computed once per call rather than per block."""
+
+    def __init__(self, cams: Sequence[Camera]):
+        #: Optical centres ``(n_cams, 3)``.
+        self.centers = np.array([cam.center_world for cam in cams])
+        #: Geometric-mean focal lengths (px).
+        self.focal = [float(np.sqrt(cam.params[0] * cam.params[1])) for cam in cams]
+        #: ``[R_i | t_i]`` stacked, ``(3 n_cams, 4)``: world to every camera frame in one product.
+        self.to_cameras = np.concatenate([np.c_[cam.cam_from_world.R, cam.cam_from_world.t] for cam in cams])
+
+
+def _triangulate_chunk(cams, rig_arrays, q, sigma_iso, W, dirs, refine, min_angle_rad, p_out, out, s):
+    """:func:`triangulate` on a block of points (arguments already validated).
+
+    ``W`` is None (isotropic ``sigma_iso``) or the components ``(W_uu, W_uv, W_vv)``, each
+    ``(n_cams, n)``, of the inverse pixel covariances. Writes rows ``s`` of ``p_out`` and of the
+    arrays of ``out``. Works on ``(n_cams, n)`` component arrays (ray directions as
+    ``D[k, camera, point]``) and per-point ``(n,)`` arrays: whole-array numpy operations on
+    blocks that stay in the CPU cache, without ``(n, 3, 3)`` stacks.
+    """
+    n_cams, n = q.shape[:2]
+    u, v = q[..., 0], q[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        used = (sigma_iso > 0) & (sigma_iso < np.inf)  # also false for NaN
+        used &= np.isfinite(u)
+        used &= np.isfinite(v)
+        D = np.empty((3, n_cams, n))
+        if dirs is None:
+            for i, cam in enumerate(cams):
+                cam.ray_directions(u[i], v[i], D[0, i], D[1, i], D[2, i])  # NaN where not invertible
+            used &= np.isfinite(D[0])
+        else:
+            for k in range(3):
+                D[k] = dirs[..., k]
+            used &= np.isfinite(D).all(axis=0)
+        all_used = bool(used.all())
+        if not all_used:
+            D[:, ~used] = 0.0
+        centers, focal = rig_arrays.centers, rig_arrays.focal
+        dc = _dot_centers(D, centers)
+
+        # Unweighted pass: ranges t_i = (p − c_i) · d_i give the weights of the second pass.
+        p0, _, _ = _nearest_point(D, dc, centers, None if all_used else used.astype(np.float64))
+        w = np.empty((n_cams, n))
+        for i in range(n_cams):
+            t = p0[0] * D[0, i]
+            t += p0[1] * D[1, i]
+            t += p0[2] * D[2, i]
+            t -= dc[i]
+            t *= sigma_iso[i]
+            np.divide(focal[i], t, out=t)
+            np.multiply(t, t, out=w[i])
+        unusable = ~np.isfinite(w)
+        if not all_used:
+            unusable |= ~used
+        if unusable.any():
+            w[unusable] = 0.0
+        p, inv, singular = _nearest_point(D, dc, centers, w, with_inverse=True)
+
+        n_views = used.sum(axis=0)
+        min_angle, max_angle = _ray_angles_components(D, used, all_used)
+        reason = np.zeros(n, np.uint8)
+        reason[singular | ~(max_angle >= min_angle_rad)] = Reason.PARALLEL
+        reason[n_views < 2] = Reason.FEW_VIEWS
+
+        rsum = np.zeros(n)  # Σ |r_i|² over the used views
+        chi2 = np.zeros(n)
+        if refine:
+            reason[(reason == 0) & _behind_components(cams, p, used)] = Reason.BEHIND
+            good = reason == 0
+            p_arr = np.stack(p, axis=1)
+            p_arr[~good] = np.nan
+            p_arr, q_hat, cov = _gauss_newton(cams, q, _weights_array(sigma_iso, W), used, p_arr, good)
+            diverged = good & ~np.all(np.isfinite(p_arr), axis=1)
+            reason[diverged] = Reason.DIVERGED
+            p = (p_arr[:, 0], p_arr[:, 1], p_arr[:, 2])
+            reason[good & ~diverged & _behind_components(cams, p, used)] = Reason.BEHIND
+            for i in range(n_cams):
+                _add_residual(u[i] - q_hat[i, :, 0], v[i] - q_hat[i, :, 1], i, used, all_used,
+                              sigma_iso, W, rsum, chi2)
+        else:
+            behind = np.zeros(n, bool)
+            p_cam = _to_cameras(rig_arrays.to_cameras, p)
+            for i, cam in enumerate(cams):
+                u_hat, v_hat, z = _project_components(cam, p_cam[3 * i:3 * i + 3])
+                z_bad = ~(z > 0.0)
+                if not all_used:
+                    z_bad &= used[i]
+                behind |= z_bad
+                np.subtract(u[i], u_hat, out=u_hat)
+                np.subtract(v[i], v_hat, out=v_hat)
+                _add_residual(u_hat, v_hat, i, used, all_used, sigma_iso, W, rsum, chi2)
+            reason[(reason == 0) & behind] = Reason.BEHIND
+        good = reason == 0
+        residual_px = np.sqrt(rsum / n_views)
+
+        all_good = bool(good.all())
+        bad = None if all_good else ~good
+        p_rows = p_out[s]
+        for k in range(3):
+            p_rows[:, k] = p[k]
+        if not all_good:
+            p_rows[bad] = np.nan
+            residual_px[bad] = np.nan
+            chi2[bad] = np.nan
+        cov_rows = out.cov[s]
+        if refine:
+            cov_rows[...] = cov
+            if not all_good:
+                cov_rows[bad] = np.nan
+            out.sigma[s] = sigma_from_covariance(cov_rows)
+        else:
+            if not all_good:
+                for c in inv:
+                    c[bad] = np.nan
+            ixx, iyy, izz, ixy, ixz, iyz = inv
+            cov_rows[:, 0, 0], cov_rows[:, 1, 1], cov_rows[:, 2, 2] = ixx, iyy, izz
+            cov_rows[:, 0, 1] = cov_rows[:, 1, 0] = ixy
+            cov_rows[:, 0, 2] = cov_rows[:, 2, 0] = ixz
+            cov_rows[:, 1, 2] = cov_rows[:, 2, 1] = iyz
+            lam = max_eigenvalue_sym3_components(*inv)
+            np.maximum(lam, 0.0, out=lam)
+            out.sigma[s] = np.sqrt(lam, out=lam)
+    out.residual_px[s] = residual_px
+    out.chi2[s] = chi2
+    out.n_views[s] = n_views
+    out.min_angle_rad[s] = min_angle
+    out.max_angle_rad[s] = max_angle
+    out.reason[s] = reason
+    out.used[:, s] = used
+
+
+def _nearest_point(D, dc, centers, weights, with_inverse=False):
+    """Weighted least-squares point nearest to the rays, on component arrays.
+
+    Parameters
+    ----------
+    D : ndarray of shape (3, n_cams, N)
+        Unit directions by component; zero for unused views.
+    dc : ndarray of shape (n_cams, N)
+        ``d_i · c_i``.
+    centers : ndarray of shape (n_cams, 3)
+        Ray origins.
+    weights : ndarray of shape (n_cams, N) or None
+        Ray weights (0 = unused); None for all ones.
+
+    Returns
+    -------
+    p : tuple of three (N,) arrays
+        The point's coordinates (NaN where singular).
+    inv : tuple of six (N,) arrays or None
+        Components ``xx, yy, zz, xy, xz, yz`` of the inverse normal matrix, if asked.
+    singular : ndarray of shape (N,), bool
+    """
+    n_cams, n = dc.shape
+    acc9 = np.empty((9, n))  # Σ w d dᵀ (xx, yy, zz, xy, xz, yz) and Σ w d (d·c) (x, y, z)
+    axx, ayy, azz, axy, axz, ayz, bx, by, bz = acc9
+    t = np.empty(n)
+    if weights is None:
+        sw = float(n_cams)
+        bc = centers.sum(axis=0)
+    else:
+        sw = weights.sum(axis=0)
+        bc = None
+    for i in range(n_cams):
+        dx, dy, dz = D[0, i], D[1, i], D[2, i]
+        if weights is None:
+            wx, wy, wz = dx, dy, dz
+        else:
+            wi = weights[i]
+            wx, wy, wz = wi * dx, wi * dy, wi * dz
+        for acc, a, b in ((axx, wx, dx), (ayy, wy, dy), (azz, wz, dz), (axy, wx, dy), (axz, wx, dz),
+                          (ayz, wy, dz), (bx, wx, dc[i]), (by, wy, dc[i]), (bz, wz, dc[i])):
+            if i == 0:
+                np.multiply(a, b, out=acc)
+            else:
+                np.multiply(a, b, out=t)
+                acc += t
+    # A = Σ w (I − d dᵀ); b = Σ w (c − d (d·c))
+    np.subtract(sw, axx, out=axx)
+    np.subtract(sw, ayy, out=ayy)
+    np.subtract(sw, azz, out=azz)
+    np.negative(axy, out=axy)
+    np.negative(axz, out=axz)
+    np.negative(ayz, out=ayz)
+    if bc is not None:
+        np.subtract(bc[0], bx, out=bx)
+        np.subtract(bc[1], by, out=by)
+        np.subtract(bc[2], bz, out=bz)
+    else:
+        wc = centers.T @ weights  # (3, N)
+        np.subtract(wc[0], bx, out=bx)
+        np.subtract(wc[1], by, out=by)
+        np.subtract(wc[2], bz, out=bz)
+    inv, singular = inv_sym3_components(axx, ayy, azz, axy, axz, ayz)
+    ixx, iyy, izz, ixy, ixz, iyz = inv
+    px = ixx * bx
+    px += ixy * by
+    px += ixz * bz
+    py = ixy * bx
+    py += iyy * by
+    py += iyz * bz
+    pz = ixz * bx
+    pz += iyz * by
+    pz += izz * bz
+    return (px, py, pz), (inv if with_inverse else None), singular
+
+
+def _to_cameras(M: np.ndarray, p) -> np.ndarray:
+    """The points ``p = (x, y, z)`` in every camera's frame: rows ``X_0, Y_0, Z_0, X_1, ...``.
+
+    One matrix product ``[R_i | t_i] @ [p; 1]`` for all cameras (``M``, ``(3 n_cams, 4)``): a
+    single pass over the points.
+    """
+    P = np.empty((4, p[0].shape[0]))
+    P[0], P[1], P[2] = p
+    P[3] = 1.0
+    return M @ P
+
+
+def _project_components(cam: Camera, p_cam):
+    """Pixels ``u, v`` and depth ``Z`` of camera-frame points ``p_cam = (X, Y, Z)``."""
+    Z = p_cam[2]
+    inv_z = np.divide(1.0, Z)
+    X = p_cam[0] * inv_z
+    Y = p_cam[1] * inv_z
+    d = cam._dist_full
+    if np.any(d):
+        X, Y = distortion.distort_components(X, Y, d)
+    fx, fy, cx, cy = cam.params[:4]
+    X *= fx
+    X += cx
+    Y *= fy
+    Y += cy
+    return X, Y, Z
+
+
+def _add_residual(ru, rv, i, used, all_used, sigma_iso, W, rsum, chi2) -> None:
+    """Add view ``i``'s residual ``(ru, rv)`` (observed − predicted, px) to ``Σ|r|²`` and χ²."""
+    r2 = ru * ru
+    r2 += rv * rv
+    if W is None:
+        term = r2 / (sigma_iso[i] * sigma_iso[i])
+    else:
+        term = W[0][i] * ru * ru
+        term += 2.0 * W[1][i] * ru * rv
+        term += W[2][i] * rv * rv
+    if not all_used:
+        unused = ~used[i]
+        r2[unused] = 0.0
+        term[unused] = 0.0
+    rsum += r2
+    chi2 += term
+
+
+def _ray_angles_components(D: np.ndarray, used: np.ndarray, all_used: bool):
+    """Smallest and largest angle between two used rays of each point (NaN below two rays)."""
+    n_cams, n = used.shape
+    cos_hi = np.full(n, np.nan)  # cosine of the smallest angle
+    cos_lo = np.full(n, np.nan)  # cosine of the largest angle
+    for i in range(n_cams):
+        for j in range(i + 1, n_cams):
+            c = D[0, i] * D[0, j]
+            c += D[1, i] * D[1, j]
+            c += D[2, i] * D[2, j]
+            if not all_used:
+                c[~(used[i] & used[j])] = np.nan
+            np.fmax(cos_hi, c, out=cos_hi)  # fmax/fmin skip the NaNs of unused pairs
+            np.fmin(cos_lo, c, out=cos_lo)
+    np.clip(cos_hi, -1.0, 1.0, out=cos_hi)
+    np.clip(cos_lo, -1.0, 1.0, out=cos_lo)
+    return np.arccos(cos_hi, out=cos_hi), np.arccos(cos_lo, out=cos_lo)
+
+
+def _behind_components(cams: Sequence[Camera], p, used: np.ndarray) -> np.ndarray:
+    """Points ``p = (x, y, z)`` on or behind the image plane of any camera that uses them."""
+    out = np.zeros(used.shape[1], bool)
+    for i, cam in enumerate(cams):
+        R, t = cam.cam_from_world.R, cam.cam_from_world.t
+        z = R[2, 0] * p[0] + R[2, 1] * p[1] + R[2, 2] * p[2] + t[2]
+        out |= used[i] & ~(z > 0.0)
+    return out
 
 
 def intersect_rays(centers: np.ndarray, dirs: np.ndarray, weights: np.ndarray, with_inverse: bool = True):
@@ -262,21 +489,19 @@ def intersect_rays(centers: np.ndarray, dirs: np.ndarray, weights: np.ndarray, w
     singular : ndarray of shape (N,), bool
         Where the rays do not determine a point (fewer than two, or parallel).
     """
-    # Component arithmetic on (n_cams, N) arrays; einsum over (N, 3, 3) is several times slower.
-    dx, dy, dz = dirs[..., 0], dirs[..., 1], dirs[..., 2]
-    wx, wy, wz = weights * dx, weights * dy, weights * dz
-    sw = weights.sum(axis=0)
-    A = (sw - (wx * dx).sum(0), sw - (wy * dy).sum(0), sw - (wz * dz).sum(0),
-         -(wx * dy).sum(0), -(wx * dz).sum(0), -(wy * dz).sum(0))
-    # b = Σ w (c − d (d·c))
-    dc = dx * centers[:, 0:1] + dy * centers[:, 1:2] + dz * centers[:, 2:3]
-    b = weights.T @ centers - np.stack([(wx * dc).sum(0), (wy * dc).sum(0), (wz * dc).sum(0)], axis=1)
-    (ixx, iyy, izz, ixy, ixz, iyz), singular = inv_sym3_components(*A)
-    p = np.stack([ixx * b[:, 0] + ixy * b[:, 1] + ixz * b[:, 2],
-                  ixy * b[:, 0] + iyy * b[:, 1] + iyz * b[:, 2],
-                  ixz * b[:, 0] + iyz * b[:, 1] + izz * b[:, 2]], axis=1)
-    A_inv = sym3_from_components(ixx, iyy, izz, ixy, ixz, iyz) if with_inverse else None
-    return p, A_inv, singular
+    D = np.moveaxis(np.asarray(dirs, dtype=np.float64), 2, 0)
+    centers = np.asarray(centers, dtype=np.float64)
+    p, inv, singular = _nearest_point(D, _dot_centers(D, centers), centers, np.asarray(weights, np.float64),
+                                      with_inverse)
+    return np.stack(p, axis=1), (sym3_from_components(*inv) if with_inverse else None), singular
+
+
+def _dot_centers(D: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """``d_i · c_i`` of shape ``(n_cams, N)`` for directions ``D`` ``(3, n_cams, N)``."""
+    dc = D[0] * centers[:, 0:1]
+    dc += D[1] * centers[:, 1:2]
+    dc += D[2] * centers[:, 2:3]
+    return dc
 
 
 def _camera_list(rig) -> list[Camera]:
@@ -287,23 +512,53 @@ def _camera_list(rig) -> list[Camera]:
 
 
 def _pixel_noise(sigma_px, cov_px, n_cams: int, n: int):
-    """Isotropic sigma ``(n_cams, N)`` px and, for full covariances, weights ``(n_cams, N, 2, 2)``.
-
-    The isotropic sigma of a full covariance is ``sqrt(trace / 2)``; it weights the closed form.
-    """
+    """Validated pixel noise: ``(sigma (n_cams, N), None)`` or ``(None, cov (n_cams, N, 2, 2))``."""
     if cov_px is not None:
         cov = np.asarray(cov_px, dtype=np.float64)
         if cov.shape != (n_cams, n, 2, 2):
             raise ShapeError(f"cov_px must have shape ({n_cams}, {n}, 2, 2), got {cov.shape}")
-        W = pixel_weights(cov)
-        sigma = np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
-        return np.where(np.all(np.isfinite(W), axis=(2, 3)), sigma, np.nan), W
+        return None, cov
     sigma = np.asarray(1.0 if sigma_px is None else sigma_px, dtype=np.float64)
     if sigma.ndim == 0:
-        sigma = np.full((n_cams, n), float(sigma))
+        sigma = np.broadcast_to(sigma, (n_cams, n))  # read-only view: no (n_cams, N) copy
     if sigma.shape != (n_cams, n):
         raise ShapeError(f"sigma_px must be a scalar or have shape ({n_cams}, {n}), got {sigma.shape}")
     return sigma, None
+
+
+def _noise_from_cov(cov: np.ndarray):
+    """Isotropic sigma and inverse-covariance components of a block of pixel covariances.
+
+    Returns ``sigma (n_cams, n)`` (``sqrt(trace / 2)``, which weights the closed form; NaN
+    where the covariance is not positive definite) and ``(W_uu, W_uv, W_vv)``, the components
+    of ``Σ⁻¹`` as :func:`~scanrig.geometry.uncertainty.pixel_weights` computes them.
+    """
+    a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    det = a * d
+    det -= b * b
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv_det = np.divide(1.0, det)
+        inv_det[~(det > 0.0)] = np.nan
+        W = (d * inv_det, -b * inv_det, a * inv_det)
+        ok = np.isfinite(W[0])
+        ok &= np.isfinite(W[1])
+        ok &= np.isfinite(W[2])
+        sigma = a + d
+        sigma *= 0.5
+        np.sqrt(sigma, out=sigma)
+    sigma[~ok] = np.nan
+    return sigma, W
+
+
+def _weights_array(sigma: np.ndarray, W) -> np.ndarray:
+    """Inverse pixel covariances ``(n_cams, n, 2, 2)`` from :func:`_noise_from_cov`'s components,
+    or ``I / σ²`` when ``W`` is None."""
+    if W is None:
+        return _isotropic_weights(sigma)
+    out = np.empty(sigma.shape + (2, 2))
+    out[..., 0, 0], out[..., 1, 1] = W[0], W[2]
+    out[..., 0, 1] = out[..., 1, 0] = W[1]
+    return out
 
 
 def _isotropic_weights(sigma: np.ndarray) -> np.ndarray:
@@ -312,33 +567,6 @@ def _isotropic_weights(sigma: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore"):
         W[..., 0, 0] = W[..., 1, 1] = 1.0 / sigma**2
     return W
-
-
-def _ray_angles(dirs: np.ndarray, used: np.ndarray):
-    """Smallest and largest angle between two used rays of each point (NaN below two rays)."""
-    n_cams, n = used.shape
-    cos_hi = np.full(n, -np.inf)  # cosine of the smallest angle
-    cos_lo = np.full(n, np.inf)  # cosine of the largest angle
-    for i in range(n_cams):
-        for j in range(i + 1, n_cams):
-            both = used[i] & used[j]
-            c = dirs[i, :, 0] * dirs[j, :, 0] + dirs[i, :, 1] * dirs[j, :, 1] + dirs[i, :, 2] * dirs[j, :, 2]
-            cos_hi = np.where(both, np.maximum(cos_hi, c), cos_hi)
-            cos_lo = np.where(both, np.minimum(cos_lo, c), cos_lo)
-    with np.errstate(invalid="ignore"):
-        lo = np.arccos(np.clip(np.where(np.isfinite(cos_hi), cos_hi, np.nan), -1.0, 1.0))
-        hi = np.arccos(np.clip(np.where(np.isfinite(cos_lo), cos_lo, np.nan), -1.0, 1.0))
-    return lo, hi
-
-
-def _behind(cams: Sequence[Camera], p: np.ndarray, used: np.ndarray) -> np.ndarray:
-    """Points on or behind the image plane of any camera that uses them."""
-    out = np.zeros(p.shape[0], bool)
-    for i, cam in enumerate(cams):
-        pose = cam.cam_from_world
-        z = p @ pose.R[2] + pose.t[2]
-        out |= used[i] & ~(z > 0.0)
-    return out
 
 
 def _gauss_newton(cams, q, W, used, p, active):

@@ -51,19 +51,45 @@ def inv_sym3_components(xx, yy, zz, xy, xz, yz):
     Returns the six components of the inverse in the same order (NaN where singular) and the
     ``(N,)`` singular mask of :func:`inv_sym3`.
     """
-    c_xx = yy * zz - yz * yz
-    c_xy = xz * yz - xy * zz
-    c_xz = xy * yz - xz * yy
-    c_yy = xx * zz - xz * xz
-    c_yz = xy * xz - xx * yz
-    c_zz = xx * yy - xy * xy
-    det = xx * c_xx + xy * c_xy + xz * c_xz
-    scale = ((xx + yy + zz) / 3.0) ** 3
-    singular = ~(np.abs(det) > SINGULAR_RTOL * np.abs(scale))
+    # Written with in-place operations: this runs on millions of points (triangulation).
+    c_xx = yy * zz
+    t = yz * yz
+    c_xx -= t
+    c_xy = xz * yz
+    np.multiply(xy, zz, out=t)
+    c_xy -= t
+    c_xz = xy * yz
+    np.multiply(xz, yy, out=t)
+    c_xz -= t
+    c_yy = xx * zz
+    np.multiply(xz, xz, out=t)
+    c_yy -= t
+    c_yz = xy * xz
+    np.multiply(xx, yz, out=t)
+    c_yz -= t
+    c_zz = xx * yy
+    np.multiply(xy, xy, out=t)
+    c_zz -= t
+    det = xx * c_xx
+    np.multiply(xy, c_xy, out=t)
+    det += t
+    np.multiply(xz, c_xz, out=t)
+    det += t
+    scale = xx + yy
+    scale += zz
+    scale /= 3.0
+    np.multiply(scale, scale, out=t)
+    t *= scale  # (trace / 3)**3
+    np.abs(t, out=t)
+    t *= SINGULAR_RTOL
+    singular = ~(np.abs(det) > t)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv_det = np.where(singular, np.nan, 1.0 / det)
-    return (c_xx * inv_det, c_yy * inv_det, c_zz * inv_det, c_xy * inv_det, c_xz * inv_det,
-            c_yz * inv_det), singular
+        inv_det = np.divide(1.0, det, out=det)
+    if singular.any():
+        inv_det[singular] = np.nan
+    for c in (c_xx, c_yy, c_zz, c_xy, c_xz, c_yz):
+        c *= inv_det
+    return (c_xx, c_yy, c_zz, c_xy, c_xz, c_yz), singular
 
 
 def sym3_from_components(xx, yy, zz, xy, xz, yz) -> np.ndarray:
@@ -89,20 +115,57 @@ def max_eigenvalue_sym3(A: np.ndarray) -> np.ndarray:
     ndarray of shape (N,)
         Largest eigenvalue; NaN where ``A`` has a NaN.
     """
-    q = np.trace(A, axis1=1, axis2=2) / 3.0
-    off = A[:, 0, 1] ** 2 + A[:, 0, 2] ** 2 + A[:, 1, 2] ** 2
-    diag = (A[:, 0, 0] - q) ** 2 + (A[:, 1, 1] - q) ** 2 + (A[:, 2, 2] - q) ** 2
-    p = np.sqrt((diag + 2.0 * off) / 6.0)
+    return max_eigenvalue_sym3_components(A[:, 0, 0], A[:, 1, 1], A[:, 2, 2], A[:, 0, 1], A[:, 0, 2], A[:, 1, 2])
+
+
+def max_eigenvalue_sym3_components(xx, yy, zz, xy, xz, yz) -> np.ndarray:
+    """:func:`max_eigenvalue_sym3` of symmetric matrices given as six ``(N,)`` component arrays."""
+    q = xx + yy
+    q += zz
+    q /= 3.0
+    b00, b11, b22 = xx - q, yy - q, zz - q
+    p = b00 * b00
+    t = b11 * b11
+    p += t
+    np.multiply(b22, b22, out=t)
+    p += t
+    for c in (xy, xz, yz):  # + 2 × the squared off-diagonal
+        np.multiply(c, c, out=t)
+        t += t
+        p += t
+    p /= 6.0
+    np.sqrt(p, out=p)
     with np.errstate(divide="ignore", invalid="ignore"):
-        B = (A - q[:, None, None] * np.eye(3)) / p[:, None, None]
-    det_B = (
-        B[:, 0, 0] * (B[:, 1, 1] * B[:, 2, 2] - B[:, 1, 2] * B[:, 2, 1])
-        - B[:, 0, 1] * (B[:, 1, 0] * B[:, 2, 2] - B[:, 1, 2] * B[:, 2, 0])
-        + B[:, 0, 2] * (B[:, 1, 0] * B[:, 2, 1] - B[:, 1, 1] * B[:, 2, 0])
-    )
-    phi = np.arccos(np.clip(det_B / 2.0, -1.0, 1.0)) / 3.0
+        inv_p = np.divide(1.0, p)
+        b00 *= inv_p
+        b11 *= inv_p
+        b22 *= inv_p
+        b01, b02, b12 = xy * inv_p, xz * inv_p, yz * inv_p
+        # det(B) = b00 (b11 b22 − b12²) − b01 (b01 b22 − b12 b02) + b02 (b01 b12 − b11 b02)
+        det_b = b11 * b22
+        np.multiply(b12, b12, out=t)
+        det_b -= t
+        det_b *= b00
+        u = b01 * b22
+        np.multiply(b12, b02, out=t)
+        u -= t
+        u *= b01
+        det_b -= u
+        np.multiply(b01, b12, out=u)
+        np.multiply(b11, b02, out=t)
+        u -= t
+        u *= b02
+        det_b += u
+        det_b *= 0.5
+        np.clip(det_b, -1.0, 1.0, out=det_b)
+        phi = np.arccos(det_b, out=det_b)
+    phi /= 3.0
+    np.cos(phi, out=phi)
+    phi *= p
+    phi += phi
+    phi += q  # q + 2 p cos(phi)
     # p == 0 means A = q I (all eigenvalues equal); B is NaN there.
-    return np.where(p > 0.0, q + 2.0 * p * np.cos(phi), q)
+    return np.where(p > 0.0, phi, q)
 
 
 def sigma_from_covariance(cov: np.ndarray) -> np.ndarray:
