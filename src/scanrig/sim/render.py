@@ -34,6 +34,8 @@ BACKDROP_ALBEDO = 0.1
 MAX_WINDOW_RADIUS_PX = 200
 #: Lamp shadow rays are cast this far, metres (beyond any scene).
 _FAR_M = 1e3
+#: Camera rays shaded per block (scratch arrays stay in the CPU cache).
+_BLOCK = 1 << 15
 
 
 @dataclass(frozen=True)
@@ -77,8 +79,9 @@ class CameraView:
     @cached_property
     def background_e(self) -> np.ndarray:
         """Noise-free laser-free image in electrons, shape (H, W), float32 (after the PSF)."""
-        cam = self.camera
-        radiance, obj = self._radiance_background(*self.ray_table.grid_rays())
+        cam, table = self.camera, self.ray_table
+        xy = table.xy.reshape(-1, 2)
+        radiance, obj = self._radiance_blocks(len(xy), lambda a, b: table.to_world(xy[a:b]))
         radiance = radiance.reshape(cam.height, cam.width)
         obj = obj.reshape(cam.height, cam.width)
         s = self.sensor.supersampling
@@ -87,9 +90,14 @@ class CameraView:
             idx = np.flatnonzero(edge)
             if idx.size:
                 centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
-                sub = _subpixel_samples(centres, s)
-                rays = self.ray_table.rays(sub)
-                radiance.ravel()[idx] = self._radiance_background(*rays)[0].reshape(idx.size, s * s).mean(axis=1)
+                # blocks of whole pixels (s² samples each), their samples made block by block
+                per = max(1, _BLOCK // (s * s))
+
+                def sub_rays(a, b):
+                    return table.rays(_subpixel_samples(centres[a // (s * s):b // (s * s)], s))[1]
+
+                sub = self._radiance_blocks(idx.size * s * s, sub_rays, block=per * s * s)[0]
+                radiance.ravel()[idx] = sub.reshape(idx.size, s * s).mean(axis=1)
         return self.sensor.blur(radiance * self.sensor.e_per_radiance)
 
     @cached_property
@@ -100,37 +108,28 @@ class CameraView:
         return NoiseField(self.sensor, self.background_e, self._rng)
 
     def _radiance_background(self, origin: np.ndarray, dirs: np.ndarray):
-        """Laser-free radiance along camera rays, and the object hit (-1 on a miss)."""
-        caster = self.scene.raycaster
-        hits = caster.cast(np.broadcast_to(origin, dirs.shape), dirs)
-        light = self.scene.lighting
-        radiance = np.full(len(dirs), BACKDROP_ALBEDO * light.ambient_W_m2 / np.pi)
-        ok = hits.hit
-        p, n, ng, view = hits.point[ok], hits.shading_normal[ok], hits.normal[ok], -dirs[ok]
-        albedo, spec, rough = self._surface(hits.obj[ok], p)
-        lamp_dir = np.asarray(light.lamp_direction)
-        cos_l = np.maximum(-(n @ lamp_dir), 0.0) * (-(ng @ lamp_dir) > 0)
-        lit = cos_l > 0
-        if light.lamp_W_m2 > 0 and np.any(lit):
-            shadow = caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit], np.broadcast_to(-lamp_dir, (int(lit.sum()), 3)),
-                                     np.full(int(lit.sum()), _FAR_M))
-            cos_l[np.flatnonzero(lit)[shadow]] = 0.0
-        e_lamp = light.lamp_W_m2 * cos_l
-        mirror = reflect(np.broadcast_to(lamp_dir, n.shape), n)
-        glare = np.where(spec > 0, spec * e_lamp * specular_lobe(np.einsum("ij,ij->i", mirror, view), rough), 0.0)
-        radiance[ok] = (albedo + spec) * light.ambient_W_m2 / np.pi + albedo * e_lamp / np.pi + glare
-        return radiance, hits.obj
+        """Laser-free radiance along camera rays from ``origin`` (3,), and the object hit (-1 on a miss)."""
+        return self._radiance_blocks(len(dirs), lambda a, b: dirs[a:b], origin=origin)
+
+    def _radiance_blocks(self, n: int, dirs_of, origin: np.ndarray | None = None, block: int | None = None):
+        """:meth:`_radiance_background` of ``n`` camera rays whose directions ``dirs_of(a, b)`` gives
+        for rays ``a:b``, block by block (every scratch array stays in the CPU cache)."""
+        origin = self.ray_table.origin if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
+        block = block or _BLOCK
+        radiance = np.empty(n)
+        obj = np.empty(n, dtype=np.int64)
+        shading = _BackgroundShading(self.scene)
+        for a in range(0, n, block):
+            b = min(n, a + block)
+            radiance[a:b], obj[a:b] = shading.radiance(origin, dirs_of(a, b))
+        return radiance, obj
 
     def _surface(self, obj: np.ndarray, p: np.ndarray):
         """Albedo, specular fraction and roughness at hit points of objects ``obj``."""
-        albedo = np.empty(len(obj))
         mats = self.scene.materials
-        for j in np.unique(obj):
-            sel = obj == j
-            albedo[sel] = mats[j].albedo_at(p[sel])
         spec = np.array([m.specular for m in mats])[obj]
         rough = np.array([m.roughness_rad for m in mats])[obj]
-        return albedo, spec, rough
+        return _albedo(mats, obj, p), spec, rough
 
     # --- laser ----------------------------------------------------------------------------------
     def laser_window(self, trace: LaserTrace, rng: np.random.Generator | None = None) -> Window | None:
@@ -184,11 +183,10 @@ class CameraView:
         """Radiance that the laser light adds at pixel positions ``q`` (N, 2), W/(m²·sr)."""
         origin, dirs = self.ray_table.rays(q)
         caster = self.scene.raycaster
-        hits = caster.cast(np.broadcast_to(origin, dirs.shape), dirs)
+        ok, hits = caster.first_hits(origin, dirs)
         radiance = np.zeros(len(q))
-        ok = hits.hit
-        p, n, ng, view = hits.point[ok], hits.shading_normal[ok], hits.normal[ok], -dirs[ok]
-        albedo, spec, rough = self._surface(hits.obj[ok], p)
+        p, n, ng, view = hits.point, hits.shading_normal, hits.normal, -dirs[ok]
+        albedo, spec, rough = self._surface(hits.obj, p)
         out = np.zeros(len(p))
         for source in trace.sources:
             inten, prop, path = source.evaluate(p)
@@ -225,6 +223,68 @@ class CameraView:
         if win is not None:
             img[win.slices] = self.sensor.expose(self.background_e[win.slices] + win.electrons, rng)
         return img
+
+
+class _BackgroundShading:
+    """Laser-free radiance of blocks of camera rays (room light: ambient plus a distant lamp)."""
+
+    def __init__(self, scene):
+        self.caster = scene.raycaster
+        self.materials = scene.materials
+        light = scene.lighting
+        self.lamp_W_m2 = light.lamp_W_m2
+        self.ambient = light.ambient_W_m2 / np.pi
+        self.lamp_dir = np.asarray(light.lamp_direction, dtype=np.float64)
+        self.backdrop = BACKDROP_ALBEDO * self.ambient
+        self.spec = np.array([m.specular for m in self.materials])
+        self.rough = np.array([m.roughness_rad for m in self.materials])
+
+    def radiance(self, origin: np.ndarray, dirs: np.ndarray):
+        """Radiance along rays ``origin`` (3,) + t ``dirs`` (n, 3), and the object hit (-1 on a miss)."""
+        n_rays = len(dirs)
+        idx, hits = self.caster.first_hits(origin, dirs)
+        radiance = np.full(n_rays, self.backdrop)
+        obj = np.full(n_rays, -1, dtype=np.int64)
+        if idx.size == 0:
+            return radiance, obj
+        p, n, ng, o = hits.point, hits.shading_normal, hits.normal, hits.obj
+        albedo = _albedo(self.materials, o, p)
+        out = albedo + self.spec[o] if self.spec.any() else albedo.copy()
+        out *= self.ambient
+        if self.lamp_W_m2 > 0:
+            lamp_dir = self.lamp_dir
+            cos_l = n @ -lamp_dir
+            cos_l[(cos_l < 0) | (ng @ lamp_dir >= 0)] = 0.0
+            lit = np.flatnonzero(cos_l > 0)
+            if lit.size:
+                shadow = self.caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit],
+                                              np.broadcast_to(-lamp_dir, (lit.size, 3)), np.full(lit.size, _FAR_M))
+                cos_l[lit[shadow]] = 0.0
+            e_lamp = self.lamp_W_m2 * cos_l
+            out += albedo * e_lamp / np.pi
+            shiny = np.flatnonzero(self.spec[o] > 0) if self.spec.any() else ()
+            if len(shiny):
+                view = -dirs[idx[shiny]]
+                mirror = reflect(np.broadcast_to(lamp_dir, (len(shiny), 3)), n[shiny])
+                out[shiny] += self.spec[o[shiny]] * e_lamp[shiny] * specular_lobe(
+                    np.einsum("ij,ij->i", mirror, view), self.rough[o[shiny]])
+        if idx.size == n_rays:
+            return out, o
+        radiance[idx] = out
+        obj[idx] = o
+        return radiance, obj
+
+
+def _albedo(materials, obj: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Albedo at hit points ``p`` of objects ``obj``."""
+    present = np.flatnonzero(np.bincount(obj, minlength=len(materials)))
+    if len(present) == 1:
+        return np.asarray(materials[present[0]].albedo_at(p), dtype=np.float64)
+    albedo = np.empty(len(obj))
+    for j in present:
+        sel = np.flatnonzero(obj == j)
+        albedo[sel] = materials[j].albedo_at(p[sel])
+    return albedo
 
 
 def _subpixel_samples(centres: np.ndarray, s: int) -> np.ndarray:

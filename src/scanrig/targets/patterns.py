@@ -16,6 +16,28 @@ import numpy as np
 from scanrig.errors import InputError
 
 
+def _squares(xy: np.ndarray, squares: tuple[int, int], square_m: float, margin_m: float):
+    """Column and row index (int64) of the chessboard square under each point, and whether the
+    point is on the chessboard (indices of points off it are meaningless)."""
+    ij = np.floor((xy - margin_m) / square_m)
+    i, j = ij[:, 0], ij[:, 1]
+    inside = i >= 0
+    inside &= j >= 0
+    inside &= i < squares[0]
+    inside &= j < squares[1]
+    with np.errstate(invalid="ignore"):
+        ij = ij.astype(np.int64)
+    return ij[:, 0], ij[:, 1], inside
+
+
+def _chessboard(i: np.ndarray, j: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """Reflectance from square indices: black where ``i + j`` is even on the board."""
+    black = (i + j) & 1
+    black ^= 1
+    black &= inside
+    return 1.0 - black
+
+
 def chessboard_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: float,
                            margin_m: float) -> np.ndarray:
     """Reflectance of a chessboard whose top-left square is black, with a white margin.
@@ -34,10 +56,7 @@ def chessboard_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: f
     ndarray of shape (N,)
         1.0 on white, 0.0 on black.
     """
-    ij = np.floor((xy - margin_m) / square_m)
-    inside = np.all((ij >= 0) & (ij < np.asarray(squares)), axis=1)
-    black = inside & ((ij[:, 0] + ij[:, 1]) % 2 == 0)
-    return np.where(black, 0.0, 1.0)
+    return _chessboard(*_squares(np.asarray(xy, dtype=np.float64), squares, square_m, margin_m))
 
 
 def charuco_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: float, margin_m: float,
@@ -61,22 +80,28 @@ def charuco_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: floa
     -------
     ndarray of shape (N,)
     """
-    value = chessboard_reflectance(xy, squares, square_m, margin_m)
+    xy = np.asarray(xy, dtype=np.float64)
+    i, j, inside = _squares(xy, squares, square_m, margin_m)
+    value = _chessboard(i, j, inside)
     n_cells = marker_bits.shape[1]
-    # The square each sample falls in picks at most one marker: look it up by square index.
-    ij = np.floor((xy - margin_m) / square_m).astype(np.int64)
+    # The square each sample falls in picks at most one marker: look it up by square index
+    # (one flat table whose extra last entry, no marker, serves the samples off the board).
+    n_sq = squares[0] * squares[1]
     marker_ij = np.floor((marker_corners_m - margin_m) / square_m).astype(np.int64)
-    lookup = -np.ones((squares[1], squares[0]), dtype=np.int64)
-    lookup[marker_ij[:, 1], marker_ij[:, 0]] = np.arange(len(marker_ij))
-    inside = np.all((ij >= 0) & (ij < np.asarray(squares)), axis=1)
-    k = np.full(len(xy), -1)
-    k[inside] = lookup[ij[inside, 1], ij[inside, 0]]
-    has = k >= 0
-    cell = np.floor((xy[has] - marker_corners_m[k[has]]) / marker_m * n_cells).astype(np.int64)
-    in_marker = np.all((cell >= 0) & (cell < n_cells), axis=1)
-    idx = np.flatnonzero(has)[in_marker]
-    c = cell[in_marker]
-    value[idx] = marker_bits[k[idx], c[:, 1], c[:, 0]]
+    lookup = np.full(n_sq + 1, -1, dtype=np.int64)
+    lookup[marker_ij[:, 1] * squares[0] + marker_ij[:, 0]] = np.arange(len(marker_ij))
+    square = j * squares[0]
+    square += i
+    square[~inside] = n_sq
+    k = lookup[square]
+    idx = np.flatnonzero(k >= 0)
+    k = k[idx]
+    cell = np.floor((xy[idx] - marker_corners_m[k]) / marker_m * n_cells).astype(np.int64)
+    cx, cy = cell[:, 0], cell[:, 1]
+    in_marker = (cx >= 0) & (cy >= 0) & (cx < n_cells) & (cy < n_cells)
+    sel = np.flatnonzero(in_marker)
+    bits = np.asarray(marker_bits).reshape(-1)
+    value[idx[sel]] = bits[(k[sel] * n_cells + cy[sel]) * n_cells + cx[sel]]
     return value
 
 
