@@ -20,6 +20,7 @@ import numpy as np
 from scanrig.calibration.observations import Observations
 from scanrig.errors import FileFormatError
 from scanrig.io.atomic import atomic_write
+from scanrig.io.csv_rows import read_csv_rows
 from scanrig.io.session import natural_key
 
 COLUMNS = ("image", "camera", "point_id", "x", "y", "weight")
@@ -45,7 +46,9 @@ def read_corners_csv(path: str | Path, image_sizes: dict[str, tuple[int, int]],
         non-finite value, a weight that is not positive, or a camera without an image size.
     """
     path = Path(path)
-    rows = _read_rows(path)
+    rows = read_csv_rows(path, _REQUIRED, "corners file", COLUMNS)
+    if not rows:
+        raise FileFormatError(path, "no detections in file")
     images = [r["image"] for _, r in rows]
     cams = [r["camera"] for _, r in rows]
     ids, x, y, weight = zip(*(_numbers(path, line, r) for line, r in rows))
@@ -62,28 +65,6 @@ def read_corners_csv(path: str | Path, image_sizes: dict[str, tuple[int, int]],
     return Observations(np.array([cam_index[c] for c in cams]), np.array([shot_index[s] for s in images]),
                         np.array(ids, dtype=np.int64), np.column_stack([x, y]), np.array(weight), names, shots,
                         {c: tuple(image_sizes[c]) for c in names})
-
-
-def _read_rows(path: Path) -> list[tuple[int, dict]]:
-    """The data rows, each with its line number; every row must have the header's cells."""
-    if not path.is_file():
-        raise FileFormatError(path, "corners file not found")
-    try:
-        with open(path, newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            header = reader.fieldnames or []
-            missing = [c for c in _REQUIRED if c not in header]
-            if missing:
-                raise FileFormatError(path, f"missing column(s) {missing}; expected header {','.join(COLUMNS)}")
-            rows = [(reader.line_num, row) for row in reader]
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise FileFormatError(path, f"not a UTF-8 CSV file: {exc}") from None
-    ragged = [line for line, row in rows if None in row or None in row.values()]
-    if ragged:
-        raise FileFormatError(path, f"line {ragged[0]}: the cells do not match the header's {len(header)} columns")
-    if not rows:
-        raise FileFormatError(path, "no detections in file")
-    return rows
 
 
 def _numbers(path: Path, line: int, row: dict) -> tuple[int, float, float, float]:

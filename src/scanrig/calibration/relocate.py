@@ -11,7 +11,6 @@ refinement of the six pose parameters with the analytic Jacobian; the pose covar
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from scanrig.calibration.uncertainty import center_jacobian
 from scanrig.errors import EstimationError, FileFormatError, InputError
 from scanrig.geometry.camera import Camera
 from scanrig.geometry.transform import RigidTransform
+from scanrig.io.csv_rows import read_csv_rows
 
 #: Fewest known points (6 pose unknowns; 5 points give 4 redundant residuals for the sigma).
 MIN_POINTS = 5
@@ -85,21 +85,7 @@ def read_known_points(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarr
         non-finite value, or fewer than :data:`MIN_POINTS` points.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "known points file not found")
-    try:
-        with open(path, newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            header = reader.fieldnames or []
-            missing = [c for c in ("point", "x", "y", "z", "u", "v") if c not in header]
-            if missing:
-                raise FileFormatError(path, f"missing column(s) {missing}; expected header point,x,y,z,u,v")
-            rows = [(reader.line_num, row) for row in reader]
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise FileFormatError(path, f"not a UTF-8 CSV file: {exc}") from None
-    ragged = [line for line, row in rows if None in row or None in row.values()]
-    if ragged:
-        raise FileFormatError(path, f"line {ragged[0]}: the cells do not match the header's {len(header)} columns")
+    rows = read_csv_rows(path, ("point", "x", "y", "z", "u", "v"), "known points file")
     values = np.array([_point_values(path, line, row) for line, row in rows]).reshape(-1, 5)
     if len(rows) < MIN_POINTS:
         raise FileFormatError(path, f"{len(rows)} known points; at least {MIN_POINTS} are needed")
