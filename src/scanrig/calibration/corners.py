@@ -5,14 +5,21 @@ seen through a lens with a roughly Gaussian blur of width ``s`` it is, near the 
 
     I(x) = m + A · erf(d1 / (√2 s)) · erf(d2 / (√2 s)),    d_k = n(θ_k) · (x - c)
 
-with ``c`` the corner (``s`` includes the pixel's own box integration, see
-:data:`PIXEL_BOX_VAR`), ``θ_1, θ_2`` the normals of the two edges (any angle between them, so
-perspective tilts are modelled), ``m`` the mean level and ``A`` the contrast. The seven
-parameters are fitted to the pixels of a window by Gauss–Newton with Levenberg damping, all
-corners of an image at once (batched numpy). Unlike ``cornerSubPix`` (a gradient-orthogonality
-criterion that blur and noise bias) and the Radon-transform detector (a fixed kernel), the fit
-uses every pixel with its actual blur, which is what the acceptance bench measures
+with ``c`` the corner, ``θ_1, θ_2`` the normals of the two edges (any angle between them, so
+perspective tilts are modelled), ``m`` the mean level and ``A`` the contrast. A pixel integrates
+the image over its area: the model is averaged over ``SUBSAMPLES²`` points of the pixel, each
+carrying the rest of the box's variance as a Gaussian (:data:`SUB_VAR`). A Gaussian stand-in for
+the whole box (one sample per pixel) mis-locates sharp edges that run along the pixel grid by up
+to 0.2 px, depending on their sub-pixel phase; sub-sampling removes that. The seven parameters
+are fitted to the pixels of a window by Gauss–Newton with Levenberg damping, all corners of an
+image at once (batched numpy). Unlike ``cornerSubPix`` (a gradient-orthogonality criterion that
+blur and noise bias) and the Radon-transform detector (a fixed kernel), the fit uses every pixel
+with its actual blur, which is what the acceptance bench measures
 (benchmarks/bench_calibration.py).
+
+Each corner may have its own window and its own pixel weights (e.g. ChArUco corners, whose
+white squares carry markers: only the pixels where the saddle model holds are used; see
+:func:`refine_charuco_corners`).
 
 Written here because OpenCV has no model-fitting corner refiner; only the pixel gather and the
 7x7 solves are per corner, both vectorised.
@@ -25,16 +32,22 @@ from scipy.special import erf
 
 #: Gauss–Newton iterations (the fit converges in 5-8 from an OpenCV start).
 ITERATIONS = 15
+#: The fit stops when no corner moves by more than this in an accepted or rejected step, px.
+STEP_TOL_PX = 1e-4
 #: A refined corner further than this from its start (pixels) is a failed fit; the start is kept.
 MAX_SHIFT_PX = 2.0
 #: Largest window half-width, pixels.
 MAX_HALF_WINDOW = 12
 #: Smallest window half-width, pixels.
 MIN_HALF_WINDOW = 3
-#: Variance (px²) of a pixel's box integration, approximated by a Gaussian: the model's edge
-#: width is ``sqrt(s² + 1/12)``, so a perfectly sharp edge stays a one-pixel ramp, not a step the
-#: fit cannot locate within a pixel.
+#: Variance (px²) of a pixel's box integration.
 PIXEL_BOX_VAR = 1.0 / 12.0
+#: Sub-samples per pixel axis for the pixel's box integration.
+SUBSAMPLES = 3
+_SUB = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5
+SUB_X, SUB_Y = (a.ravel() for a in np.meshgrid(_SUB, _SUB))
+#: Variance left to each sub-sample (a box of 1/SUBSAMPLES px), as a Gaussian.
+SUB_VAR = PIXEL_BOX_VAR / SUBSAMPLES ** 2
 
 
 def refine_corners(grey: np.ndarray, uv: np.ndarray, size: tuple[int, int],
@@ -72,7 +85,14 @@ def refine_corners(grey: np.ndarray, uv: np.ndarray, size: tuple[int, int],
     return fit_saddles(np.asarray(grey, dtype=np.float64), uv, theta, half_window)
 
 
-def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half: int):
+def window_offsets(half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel offsets (x, y), each (P,), of a (2 half + 1)² window, row-major."""
+    off = np.arange(-half, half + 1)
+    ox, oy = np.meshgrid(off, off)
+    return ox.ravel(), oy.ravel()
+
+
+def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half, pixel_weight=None):
     """Fit the blurred-saddle model at many corners (see the module docstring).
 
     Parameters
@@ -82,8 +102,11 @@ def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half: int)
         Starting corners, pixels.
     theta0 : ndarray of shape (N, 2)
         Starting normal angles of the two edges, radians.
-    half : int
-        Window half-width, pixels.
+    half : int or ndarray of shape (N,)
+        Window half-width, pixels (per corner, or one for all).
+    pixel_weight : ndarray of shape (N, P), optional
+        Extra weight of each window pixel, P = (2 max(half) + 1)² in :func:`window_offsets`
+        order around ``round(uv0)``; 0 excludes a pixel.
 
     Returns
     -------
@@ -91,33 +114,44 @@ def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half: int)
     ok : ndarray of shape (N,), bool
     """
     n = len(uv0)
-    off = np.arange(-half, half + 1)
-    ox, oy = np.meshgrid(off, off)
-    ox, oy = ox.ravel(), oy.ravel()
+    halves = np.broadcast_to(np.asarray(half, dtype=np.int64), (n,))
+    big = int(halves.max()) if n else 1
+    ox, oy = window_offsets(big)
     centre = np.round(uv0).astype(np.int64)
     px = centre[:, 0:1] + ox[None, :]                 # (N, P) pixel columns
     py = centre[:, 1:2] + oy[None, :]
     h, w = img.shape
-    inside = (px.min(axis=1) >= 0) & (py.min(axis=1) >= 0) & (px.max(axis=1) < w) & (py.max(axis=1) < h)
+    in_win = (np.abs(ox)[None, :] <= halves[:, None]) & (np.abs(oy)[None, :] <= halves[:, None])
+    in_img = (px >= 0) & (py >= 0) & (px < w) & (py < h)
+    inside = np.all(in_img | ~in_win, axis=1)
     values = img[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)]
     # Gaussian taper: pixels far from the corner (nearer the next corner) count less.
-    taper = np.exp(-0.5 * (ox ** 2 + oy ** 2) / (0.6 * half) ** 2)[None, :]
+    hh = halves[:, None].astype(np.float64)
+    taper = np.exp(-0.5 * (ox[None, :] ** 2 + oy[None, :] ** 2) / (0.6 * hh) ** 2) * in_win
+    if pixel_weight is not None:
+        taper = taper * pixel_weight
+    used = taper > 0
+    wsum = np.maximum(taper.sum(axis=1), 1e-12)
+    # Sub-sample positions (N, P, K).
+    sx = px[:, :, None] + SUB_X[None, None, :]
+    sy = py[:, :, None] + SUB_Y[None, None, :]
 
     c = uv0.astype(np.float64).copy()
     th = theta0.astype(np.float64).copy()
     s = np.full(n, 1.0)
-    # Linear start for m and A given the geometry.
-    e1, e2 = _edges(px, py, c, th, s)[:2]
-    basis = e1 * e2
-    bm = basis.mean(axis=1)
-    A = np.sum((basis - bm[:, None]) * (values - values.mean(axis=1, keepdims=True)), axis=1) \
-        / np.maximum(np.sum((basis - bm[:, None]) ** 2, axis=1), 1e-12)
-    m = values.mean(axis=1) - A * bm
+    # Linear start for m and A given the geometry (weighted).
+    e1, e2 = _edges(sx, sy, c, th, s)[:2]
+    basis = (e1 * e2).mean(axis=2)
+    bm = np.sum(taper * basis, axis=1) / wsum
+    vm = np.sum(taper * values, axis=1) / wsum
+    A = np.sum(taper * (basis - bm[:, None]) * (values - vm[:, None]), axis=1) \
+        / np.maximum(np.sum(taper * (basis - bm[:, None]) ** 2, axis=1), 1e-12)
+    m = vm - A * bm
     p = np.column_stack([c, th, s, m, A])             # (N, 7)
     lam = np.full(n, 1e-3)
-    cost = _cost(p, px, py, values, taper)
+    cost = _cost(p, sx, sy, values, taper)
     for _ in range(ITERATIONS):
-        r, J = _residual_jacobian(p, px, py, values)
+        r, J = _residual_jacobian(p, sx, sy, values)
         Jw = J * taper[:, :, None]
         H = np.einsum("npi,npj->nij", Jw, J)
         g = np.einsum("npi,np->ni", Jw, r)
@@ -126,50 +160,129 @@ def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half: int)
                                -g[:, :, None])[:, :, 0]
         p_new = p + step
         p_new[:, 4] = np.abs(p_new[:, 4])
-        cost_new = _cost(p_new, px, py, values, taper)
+        cost_new = _cost(p_new, sx, sy, values, taper)
         better = cost_new < cost
         p[better], cost[better] = p_new[better], cost_new[better]
         lam = np.where(better, lam * 0.3, lam * 10.0)
+        if np.all((np.abs(step[:, :2]).max(axis=1) < STEP_TOL_PX) | ~np.isfinite(cost)):
+            break
     uv = p[:, :2]
     ok = inside & np.all(np.isfinite(uv), axis=1) & (np.linalg.norm(uv - uv0, axis=1) < MAX_SHIFT_PX) \
-        & (p[:, 4] < half)
+        & (p[:, 4] < halves) & (used.sum(axis=1) >= 12)
     return np.where(ok[:, None], uv, uv0), ok
 
 
-def _edges(px, py, c, th, s):
-    """erf edge terms, their derivatives and the signed distances (all (N, P))."""
-    dx = px - c[:, 0:1]
-    dy = py - c[:, 1:2]
-    n1 = np.stack([np.cos(th[:, 0]), np.sin(th[:, 0])], axis=1)
-    n2 = np.stack([np.cos(th[:, 1]), np.sin(th[:, 1])], axis=1)
-    d1 = n1[:, 0:1] * dx + n1[:, 1:2] * dy
-    d2 = n2[:, 0:1] * dx + n2[:, 1:2] * dy
-    k = 1.0 / (np.sqrt(2.0) * np.sqrt(s[:, None] ** 2 + PIXEL_BOX_VAR))
+def _edges(sx, sy, c, th, s):
+    """erf edge terms, their derivatives and the signed distances (all (N, P, K))."""
+    dx = sx - c[:, 0, None, None]
+    dy = sy - c[:, 1, None, None]
+    c1, s1 = np.cos(th[:, 0])[:, None, None], np.sin(th[:, 0])[:, None, None]
+    c2, s2 = np.cos(th[:, 1])[:, None, None], np.sin(th[:, 1])[:, None, None]
+    d1 = c1 * dx + s1 * dy
+    d2 = c2 * dx + s2 * dy
+    k = (1.0 / (np.sqrt(2.0) * np.sqrt(s ** 2 + SUB_VAR)))[:, None, None]
     e1, e2 = erf(d1 * k), erf(d2 * k)
     g1 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d1 * k) ** 2)       # d e1 / d d1
     g2 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d2 * k) ** 2)
-    return e1, e2, g1, g2, d1, d2, dx, dy, n1, n2
+    return e1, e2, g1, g2, d1, d2, dx, dy, (c1, s1), (c2, s2)
 
 
-def _cost(p, px, py, values, taper):
-    e1, e2 = _edges(px, py, p[:, :2], p[:, 2:4], p[:, 4])[:2]
-    r = p[:, 5:6] + p[:, 6:7] * e1 * e2 - values
+def _cost(p, sx, sy, values, taper):
+    e1, e2 = _edges(sx, sy, p[:, :2], p[:, 2:4], p[:, 4])[:2]
+    r = p[:, 5:6] + p[:, 6:7] * (e1 * e2).mean(axis=2) - values
     cost = np.sum(taper * r ** 2, axis=1)
     return np.where(np.isfinite(cost), cost, np.inf)
 
 
-def _residual_jacobian(p, px, py, values):
+def _residual_jacobian(p, sx, sy, values):
     """Residuals (N, P) and Jacobian (N, P, 7) of the model with respect to (u, v, θ1, θ2, s, m, A)."""
     c, th, s, m, A = p[:, :2], p[:, 2:4], p[:, 4], p[:, 5:6], p[:, 6:7]
-    e1, e2, g1, g2, d1, d2, dx, dy, n1, n2 = _edges(px, py, c, th, s)
-    r = m + A * e1 * e2 - values
-    J = np.empty(px.shape + (7,))
-    J[:, :, 0] = -A * (g1 * e2 * n1[:, 0:1] + e1 * g2 * n2[:, 0:1])
-    J[:, :, 1] = -A * (g1 * e2 * n1[:, 1:2] + e1 * g2 * n2[:, 1:2])
-    J[:, :, 2] = A * g1 * e2 * (-np.sin(th[:, 0:1]) * dx + np.cos(th[:, 0:1]) * dy)
-    J[:, :, 3] = A * e1 * g2 * (-np.sin(th[:, 1:2]) * dx + np.cos(th[:, 1:2]) * dy)
-    s2 = s[:, None] ** 2 + PIXEL_BOX_VAR                      # d s_eff / d s = s / s_eff
-    J[:, :, 4] = -A * (g1 * d1 * e2 + e1 * g2 * d2) * s[:, None] / s2
+    e1, e2, g1, g2, d1, d2, dx, dy, (c1, s1), (c2, s2) = _edges(sx, sy, c, th, s)
+    Ak = A[:, :, None]
+    r = m + A * (e1 * e2).mean(axis=2) - values
+    J = np.empty(sx.shape[:2] + (7,))
+    ge2, e1g = g1 * e2, e1 * g2
+    J[:, :, 0] = -(Ak * (ge2 * c1 + e1g * c2)).mean(axis=2)
+    J[:, :, 1] = -(Ak * (ge2 * s1 + e1g * s2)).mean(axis=2)
+    J[:, :, 2] = (Ak * ge2 * (-s1 * dx + c1 * dy)).mean(axis=2)
+    J[:, :, 3] = (Ak * e1g * (-s2 * dx + c2 * dy)).mean(axis=2)
+    s_eff2 = (s ** 2 + SUB_VAR)[:, None, None]                      # d s_eff / d s = s / s_eff
+    J[:, :, 4] = -(Ak * (ge2 * d1 + e1g * d2) * s[:, None, None] / s_eff2).mean(axis=2)
     J[:, :, 5] = 1.0
-    J[:, :, 6] = e1 * e2
+    J[:, :, 6] = (e1 * e2).mean(axis=2)
     return r, J
+
+
+#: Pixels kept clear of the ends of a saddle's valid region (blur and the start's error), px.
+CHARUCO_GUARD_PX = 1.5
+
+
+def refine_charuco_corners(grey: np.ndarray, uv: np.ndarray, xy_board: np.ndarray, square_m: float,
+                           marker_m: float, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Refine the ChArUco corners of one board with the saddle fit, markers masked out.
+
+    The board-to-image homography of the detected corners gives, at every corner, the image of
+    one square along each board axis (edge directions, window size) and the board position of
+    every window pixel. A pixel is used when it lies within one square of the corner along both
+    axes, and, in the two white squares (which carry markers), in the marker-free strip along
+    the edges, all with :data:`CHARUCO_GUARD_PX` to spare. So a corner of a face seen at a
+    grazing angle is fitted only where the saddle model holds, instead of a square window that
+    reaches markers and neighbouring corners.
+
+    Parameters
+    ----------
+    grey : ndarray of shape (H, W)
+    uv : ndarray of shape (N, 2)
+        Detected corners (pixels), N >= 4.
+    xy_board : ndarray of shape (N, 2)
+        Their board coordinates, metres (margin included).
+    square_m, marker_m, margin_m : float
+        Board geometry.
+
+    Returns
+    -------
+    uv_refined : ndarray of shape (N, 2)
+        The input position where the fit failed.
+    ok : ndarray of shape (N,), bool
+    """
+    import cv2
+
+    uv = np.asarray(uv, dtype=np.float64)
+    xy = np.asarray(xy_board, dtype=np.float64)
+    n = len(uv)
+    if n < 4:
+        return uv.copy(), np.zeros(n, dtype=bool)
+    H, _ = cv2.findHomography(xy, uv, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return uv.copy(), np.zeros(n, dtype=bool)
+    Hinv = np.linalg.inv(H)
+    # Image of one square along board x and y at each corner (Jacobian of the homography).
+    hom = np.column_stack([xy, np.ones(n)]) @ H.T
+    w = hom[:, 2:3]
+    proj = hom[:, :2] / w
+    ex = (H[:2, 0][None, :] - proj * H[2, 0]) / w * square_m
+    ey = (H[:2, 1][None, :] - proj * H[2, 1]) / w * square_m
+    len_x, len_y = np.linalg.norm(ex, axis=1), np.linalg.norm(ey, axis=1)
+    theta = np.column_stack([np.arctan2(ex[:, 0], -ex[:, 1]), np.arctan2(ey[:, 0], -ey[:, 1])])
+    half = np.clip(np.ceil(0.6 * np.maximum(len_x, len_y)), MIN_HALF_WINDOW, MAX_HALF_WINDOW).astype(np.int64)
+    ox, oy = window_offsets(int(half.max()))
+    centre = np.round(uv)
+    px = centre[:, 0:1] + ox[None, :]
+    py = centre[:, 1:2] + oy[None, :]
+    hp = Hinv[None, :, 0:1] * px[:, None, :] + Hinv[None, :, 1:2] * py[:, None, :] + Hinv[None, :, 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (hp[:, 0] / hp[:, 2] - xy[:, 0:1]) / square_m          # board offset from the corner, squares
+        b = (hp[:, 1] / hp[:, 2] - xy[:, 1:2]) / square_m
+    da = (CHARUCO_GUARD_PX / len_x)[:, None]
+    db = (CHARUCO_GUARD_PX / len_y)[:, None]
+    valid = (np.abs(a) < 1 - da) & (np.abs(b) < 1 - db)
+    # Square indices of the corner (a grid-line crossing) and colour of each pixel's square:
+    # square (i, j) is black when i + j is even (top-left square black).
+    ic = np.round((xy[:, 0] - margin_m) / square_m).astype(np.int64)[:, None]
+    jc = np.round((xy[:, 1] - margin_m) / square_m).astype(np.int64)[:, None]
+    white = ((ic + (a < 0) * -1 + jc + (b < 0) * -1) % 2) == 1
+    strip = 0.5 * (square_m - marker_m) / square_m
+    clear = (np.abs(a) < strip - da) | (np.abs(b) < strip - db)
+    valid &= ~white | clear
+    valid &= np.isfinite(a) & np.isfinite(b)
+    return fit_saddles(np.asarray(grey, dtype=np.float64), uv, theta, half, valid.astype(np.float64))

@@ -117,6 +117,10 @@ def simulate(cameras: list[Camera], target: Target, n_shots: int, sigma_px: floa
     return SyntheticCalibration(cameras, poses, observe(cameras, target, poses, sigma_px, rng), sigma_px)
 
 
+#: Sub-samples per axis with which :func:`render_board` re-renders pixels cut by an edge.
+EDGE_SUPERSAMPLE = 16
+
+
 def render_board(board, camera: Camera, cam_from_board: RigidTransform, blur_px: float, noise_dn: float,
                  rng: np.random.Generator, supersample: int = 4, black_dn: float = 30.0,
                  white_dn: float = 220.0) -> np.ndarray:
@@ -124,8 +128,12 @@ def render_board(board, camera: Camera, cam_from_board: RigidTransform, blur_px:
 
     Each pixel averages ``supersample²`` rays intersected with the board plane (true lens
     model, so the corners' truth is ``camera.project_cam(cam_from_board.apply(points_board))``);
-    then a Gaussian blur of ``blur_px`` (sigma) and Gaussian noise of ``noise_dn`` are applied
-    and the result is rounded to 8 bits. Off the board the paper is white.
+    pixels whose rays do not all agree (an edge crosses them) are re-rendered with
+    :data:`EDGE_SUPERSAMPLE`² rays. (With 4 x 4 rays alone, an edge along the pixel grid is
+    placed on a 1/4-px lattice: up to 0.125 px of systematic error per edge, ~0.1 px RMS at a
+    fronto-parallel corner, which a corner benchmark would then charge to the detector.) Then a
+    Gaussian blur of ``blur_px`` (sigma) and Gaussian noise of ``noise_dn`` are applied and the
+    result is rounded to 8 bits. Off the board the paper is white.
 
     Returns
     -------
@@ -134,22 +142,34 @@ def render_board(board, camera: Camera, cam_from_board: RigidTransform, blur_px:
     import cv2
 
     w, h = camera.width, camera.height
+    cam0 = camera.with_pose(RigidTransform.identity())
+
+    def reflectance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        xy, ok = cam0.unproject(np.column_stack([u, v]))
+        rays = np.column_stack([xy, np.ones(len(xy))])
+        # Plane z_board = 0 in camera frame: normal R[:, 2], passing through t.
+        normal, origin = cam_from_board.R[:, 2], cam_from_board.t
+        depth = (origin @ normal) / (rays @ normal)
+        hit_board = (rays * depth[:, None] - origin) @ cam_from_board.R
+        refl = np.ones(len(rays))
+        good = ok & (depth > 0)
+        refl[good] = board.reflectance(hit_board[good, :2])
+        return refl
+
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
     u = (np.arange(w)[:, None] + offsets[None, :]).ravel()
     v = (np.arange(h)[:, None] + offsets[None, :]).ravel()
     uu, vv = np.meshgrid(u, v)
-    cam0 = camera.with_pose(RigidTransform.identity())
-    xy, ok = cam0.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
-    rays = np.column_stack([xy, np.ones(len(xy))])
-    # Plane z_board = 0 in camera frame: normal R[:, 2], passing through t.
-    normal, origin = cam_from_board.R[:, 2], cam_from_board.t
-    depth = (origin @ normal) / (rays @ normal)
-    hit_cam = rays * depth[:, None]
-    hit_board = (hit_cam - origin) @ cam_from_board.R
-    refl = np.ones(len(rays))
-    good = ok & (depth > 0)
-    refl[good] = board.reflectance(hit_board[good, :2])
-    img = refl.reshape(h, supersample, w, supersample).mean(axis=(1, 3))
+    samples = reflectance(uu.ravel(), vv.ravel()).reshape(h, supersample, w, supersample)
+    img = samples.mean(axis=(1, 3))
+    edge_v, edge_u = np.nonzero(samples.max(axis=(1, 3)) > samples.min(axis=(1, 3)))
+    fine = (np.arange(EDGE_SUPERSAMPLE) + 0.5) / EDGE_SUPERSAMPLE - 0.5
+    fu, fv = (a.ravel() for a in np.meshgrid(fine, fine))
+    chunk = 4096
+    for k in range(0, len(edge_u), chunk):
+        eu, ev = edge_u[k:k + chunk], edge_v[k:k + chunk]
+        r = reflectance((eu[:, None] + fu[None, :]).ravel(), (ev[:, None] + fv[None, :]).ravel())
+        img[ev, eu] = r.reshape(len(eu), -1).mean(axis=1)
     img = black_dn + (white_dn - black_dn) * img
     if blur_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_px)
