@@ -32,6 +32,10 @@ MIN_POINTS_PER_VIEW = 4
 MAX_VIEW_RMS_PX = 10.0
 #: Most planes given to ``calibrateCamera`` per camera (evenly spread), to keep it fast.
 MAX_PLANES_FOR_INTRINSICS = 40
+#: Least ratio of the smaller to the larger principal spread of a board's points in one view for
+#: the homography initialisation: below it the points are (nearly) on one line (e.g. one row of a
+#: board cut by the image border), which gives no homography and made ``calibrateCamera`` fail.
+MIN_PLANE_SPREAD_RATIO = 0.05
 
 
 @dataclass
@@ -97,7 +101,12 @@ def initialise(obs: Observations, target: Target, models: dict[str, str]) -> Ini
 
 
 def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera:
-    """Zhang initialisation of one camera from every board-in-view with enough points."""
+    """Zhang initialisation of one camera from every board-in-view with enough points.
+
+    Boards with fewer than :data:`MIN_POINTS_PER_PLANE` points in a view, or whose points are
+    degenerate for a homography (nearly collinear, see :data:`MIN_PLANE_SPREAD_RATIO`, or no
+    finite homography), are skipped here; the bundle adjustment still uses their points.
+    """
     import cv2
 
     name = obs.camera_names[c]
@@ -110,11 +119,14 @@ def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera
         sel = rows[key == k]
         if len(sel) < MIN_POINTS_PER_PLANE:
             continue
-        planes_obj.append(target.points_on_board(obs.point_id[sel]).astype(np.float32))
+        p_board = target.points_on_board(obs.point_id[sel])
+        if not _plane_usable(p_board[:, :2], obs.uv[sel]):
+            continue
+        planes_obj.append(p_board.astype(np.float32))
         planes_img.append(obs.uv[sel].astype(np.float32))
     if not planes_obj:
-        raise InputError(f"camera {name!r}: no view shows {MIN_POINTS_PER_PLANE} or more points of one board; "
-                         "take closer or more frontal calibration images")
+        raise InputError(f"camera {name!r}: no view shows {MIN_POINTS_PER_PLANE} or more points of one board "
+                         "spread over more than a line; take closer or more frontal calibration images")
     if len(planes_obj) > MAX_PLANES_FOR_INTRINSICS:
         pick = np.linspace(0, len(planes_obj) - 1, MAX_PLANES_FOR_INTRINSICS).round().astype(int)
         planes_obj = [planes_obj[i] for i in pick]
@@ -137,6 +149,25 @@ def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera
     coeffs[:min(n_dist, len(d), 5)] = d[:min(n_dist, len(d), 5)]
     params = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], coeffs])
     return Camera(name, model, params, width, height)
+
+
+def _plane_usable(xy_board: np.ndarray, uv: np.ndarray) -> bool:
+    """Whether one board's points in one view give a homography (not nearly collinear, finite H)."""
+    import cv2
+
+    xy_board = np.asarray(xy_board, float)
+    uv = np.asarray(uv, float)
+    if not (np.all(np.isfinite(xy_board)) and np.all(np.isfinite(uv))):
+        return False
+    for pts in (xy_board, uv):
+        sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+        if sv[0] <= 0 or sv[1] < MIN_PLANE_SPREAD_RATIO * sv[0]:
+            return False
+    try:
+        H, _ = cv2.findHomography(xy_board, uv)
+    except cv2.error:
+        return False
+    return H is not None and H.shape == (3, 3) and bool(np.all(np.isfinite(H)))
 
 
 def view_pose(camera: Camera, target: Target, point_ids: np.ndarray, uv: np.ndarray):

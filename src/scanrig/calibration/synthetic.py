@@ -1,7 +1,9 @@
 """Synthetic calibration observations with known truth, for tests and benchmarks.
 
-Cameras on a ring look at the origin; the target is posed near the origin; every target point
-that is in front of a camera, inside its image and seen from the printed side at less than
+Cameras on a ring look at the origin; the target is posed near the origin
+(:func:`random_target_poses`) or, as a calibrating user does, moved over the cameras' whole
+fields of view and depth range (:func:`covering_target_poses`); every target point that is in
+front of a camera, inside its image and seen from the printed side at less than
 :data:`MAX_VIEW_ANGLE_DEG` from the board normal is observed with Gaussian pixel noise.
 """
 
@@ -83,25 +85,81 @@ def random_target_poses(n_shots: int, rng: np.random.Generator, max_tilt_deg: fl
     return poses
 
 
+def covering_target_poses(cameras: list[Camera], target: Target, n_shots: int, rng: np.random.Generator,
+                          image_margin: float = 0.1, depth_m: float = 0.25, min_cameras: int = 2,
+                          min_points: int = 12, max_tries: int = 200) -> list[RigidTransform]:
+    """Target poses spread over the cameras' fields of view, as a calibrating user takes them.
+
+    Shot 0 is the identity (the world frame). For every other shot, the cameras take turns: a
+    pixel is drawn uniformly over the camera's image less ``image_margin`` (fraction of width and
+    height) on each side, the target centre is put on that pixel's ray at a depth (camera z)
+    uniform within ``± depth_m`` of the depth of the cameras' aim point (the world origin), and
+    the target gets a uniformly random orientation. Since the target extends around its centre,
+    shots drawn near a border see it cut by the image edge, so every camera sees target points
+    up to its image corners. A pose is kept when at least ``min_cameras`` cameras each see at
+    least ``min_points`` points (with the visibility rules of :func:`observe`); otherwise it is
+    drawn again (at most ``max_tries`` times per shot).
+
+    Raises
+    ------
+    ValueError
+        No pose seen by ``min_cameras`` cameras within ``max_tries`` draws.
+    """
+    from scipy.spatial.transform import Rotation
+
+    poses = [RigidTransform.identity()]
+    # Target centre (target frame) from its points, so the drawn pixel is the target's middle.
+    centre_target = 0.5 * (target.points_target.min(axis=0) + target.points_target.max(axis=0))
+    for s in range(1, n_shots):
+        cam = cameras[(s - 1) % len(cameras)]
+        aim_depth = cam.cam_from_world.apply(np.zeros((1, 3)))[0, 2]
+        for _ in range(max_tries):
+            w, h = cam.width, cam.height
+            q = rng.uniform([image_margin * w, image_margin * h], [(1 - image_margin) * w, (1 - image_margin) * h])
+            xy, ok = cam.unproject(q[None, :])
+            if not ok[0]:
+                continue
+            depth = aim_depth + rng.uniform(-depth_m, depth_m)
+            centre_world = cam.cam_from_world.inverse().apply((np.append(xy[0], 1.0) * depth)[None, :])[0]
+            R = Rotation.random(random_state=rng).as_matrix()
+            pose = RigidTransform(R, centre_world - R @ centre_target)
+            if sum(np.count_nonzero(_visible(c, target, pose)) >= min_points for c in cameras) >= min_cameras:
+                poses.append(pose)
+                break
+        else:
+            raise ValueError(f"no target pose seen by {min_cameras} cameras in {max_tries} draws (shot {s})")
+    return poses
+
+
+def _visible(cam: Camera, target: Target, pose: RigidTransform) -> np.ndarray:
+    """Which target points ``cam`` sees with the target at ``pose`` (world_from_target)."""
+    return _project_visible(cam, target, pose)[0]
+
+
+def _project_visible(cam: Camera, target: Target, pose: RigidTransform):
+    """Visibility mask (see the module docstring) and pixels of every target point in ``cam``."""
+    normals_target = np.concatenate([np.tile(b.target_from_board.R[:, 2], (len(b.point_ids), 1))
+                                     for b in target.boards])
+    cos_max = np.cos(np.deg2rad(MAX_VIEW_ANGLE_DEG))
+    p_world = pose.apply(target.points_target)
+    inward_world = normals_target @ pose.R.T          # board z (into the board), world frame
+    q = cam.project(p_world)
+    sight = p_world - cam.center_world
+    sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+    facing = np.sum(sight * inward_world, axis=1) > cos_max
+    inside = np.all(np.isfinite(q), axis=1) & (q[:, 0] > 0) & (q[:, 1] > 0) \
+        & (q[:, 0] < cam.width - 1) & (q[:, 1] < cam.height - 1)
+    return facing & inside, q
+
+
 def observe(cameras: list[Camera], target: Target, world_from_target: list[RigidTransform],
             sigma_px: float, rng: np.random.Generator) -> Observations:
     """Noisy observations of every visible target point (see the module docstring)."""
     parts = []
     shot_names = [f"{s:03d}" for s in range(len(world_from_target))]
-    normals_target = np.concatenate([np.tile(b.target_from_board.R[:, 2], (len(b.point_ids), 1))
-                                     for b in target.boards])
-    cos_max = np.cos(np.deg2rad(MAX_VIEW_ANGLE_DEG))
     for s, pose in enumerate(world_from_target):
-        p_world = pose.apply(target.points_target)
-        inward_world = normals_target @ pose.R.T          # board z (into the board), world frame
         for cam in cameras:
-            q = cam.project(p_world)
-            sight = p_world - cam.center_world
-            sight /= np.linalg.norm(sight, axis=1, keepdims=True)
-            facing = np.sum(sight * inward_world, axis=1) > cos_max
-            inside = np.all(np.isfinite(q), axis=1) & (q[:, 0] > 0) & (q[:, 1] > 0) \
-                & (q[:, 0] < cam.width - 1) & (q[:, 1] < cam.height - 1)
-            keep = facing & inside
+            keep, q = _project_visible(cam, target, pose)
             if np.count_nonzero(keep) == 0:
                 continue
             noisy = q[keep] + rng.normal(scale=sigma_px, size=(np.count_nonzero(keep), 2))
@@ -111,9 +169,17 @@ def observe(cameras: list[Camera], target: Target, world_from_target: list[Rigid
 
 
 def simulate(cameras: list[Camera], target: Target, n_shots: int, sigma_px: float,
-             rng: np.random.Generator, **pose_options) -> SyntheticCalibration:
-    """Random target poses (shot 0 = world) and noisy observations of them."""
-    poses = random_target_poses(n_shots, rng, **pose_options)
+             rng: np.random.Generator, cover: bool = False, **pose_options) -> SyntheticCalibration:
+    """Random target poses (shot 0 = world) and noisy observations of them.
+
+    ``cover=False``: poses near the origin (:func:`random_target_poses`); ``cover=True``: poses
+    spread over the cameras' fields of view and depth (:func:`covering_target_poses`).
+    ``pose_options`` go to the chosen function.
+    """
+    if cover:
+        poses = covering_target_poses(cameras, target, n_shots, rng, **pose_options)
+    else:
+        poses = random_target_poses(n_shots, rng, **pose_options)
     return SyntheticCalibration(cameras, poses, observe(cameras, target, poses, sigma_px, rng), sigma_px)
 
 
