@@ -9,21 +9,28 @@ background ``b`` is
 (``A`` is the peak of the continuous profile, so a wide trace has pixel values close to ``b + A``).
 A spot is the separable product of two such profiles, with widths ``s_u`` and ``s_v``.
 
-The fit is Levenberg–Marquardt with Marquardt's diagonal scaling, run for a fixed number of
-iterations on every candidate at once: windows are stacked into ``(n, W)`` (stripes) or
-``(n, Wv, Wu)`` (spots) arrays and a boolean mask drops pixels that are saturated, outside the
-frame or nearer to another candidate. A few NumPy calls per iteration on the whole stack replace
-a Python loop over candidates; the windows are small, so this is far below the frame's read time.
+The fit is Levenberg–Marquardt with Marquardt's diagonal scaling, run on every candidate at once:
+windows are stacked into ``(n, W)`` (stripes) or ``(n, Wv · Wu)`` (spots) arrays and a boolean
+mask drops pixels that are saturated, outside the frame or nearer to another candidate. A few
+NumPy calls per iteration on the whole stack replace a Python loop over candidates.
+
+Internally the stacks are *candidate-minor*: pixel ``m`` of all candidates is one contiguous row
+(``(M, n)`` data, ``(P, M, n)`` Jacobian, ``(P, n)`` parameters), so every elementwise operation
+and every sum over a window runs over long contiguous rows instead of many 19-element ones, and
+each entry of ``JᵀJ`` is one ``(n,)`` array; the small systems are then solved by a Cholesky
+factorisation written out entry by entry over the candidate axis (:func:`_marquardt_step`).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import erf
 
-_SQRT2 = np.sqrt(2.0)
+_INV_SQRT2 = 1.0 / np.sqrt(2.0)
+_ROOT_HALF_PI = np.sqrt(np.pi / 2.0)
 #: Width bounds of the fit, pixels: below 0.3 px a Gaussian is a single pixel and its centre is
 #: unobservable; the upper bound is set by the caller from the window.
 MIN_WIDTH_PX = 0.3
@@ -55,16 +62,44 @@ def integrated_profile(x: np.ndarray, x0: np.ndarray, s: np.ndarray):
         ``g = √(2π) s [Φ(t1) − Φ(t0)]`` with ``t1,0 = (x ± ½ − x0)/s``; ``g → 1`` at the centre
         of a wide profile.
     """
-    edges = np.append(x - 0.5, x[-1] + 0.5)[None, :]
-    t = (edges - x0) / s
-    root_2pi_cdf = np.sqrt(np.pi / 2.0) * erf(t / _SQRT2)  # √(2π) Φ(t) up to a constant
-    e = np.exp(-0.5 * t * t)  # √(2π) φ(t)
-    te = t * e
-    root_2pi_area = root_2pi_cdf[:, 1:] - root_2pi_cdf[:, :-1]
-    g = s * root_2pi_area
-    dg_dx0 = e[:, :-1] - e[:, 1:]
-    dg_ds = root_2pi_area - te[:, 1:] + te[:, :-1]
-    return g, dg_dx0, dg_ds
+    x0, s = np.broadcast_arrays(np.ravel(x0).astype(float), np.ravel(s).astype(float))
+    out = np.empty((3, x.size, x0.size))
+    _profile(_edges(x), x0, s, out)
+    return out[0].T, out[1].T, out[2].T
+
+
+def _profile(edges: np.ndarray, x0: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
+    """:func:`integrated_profile` candidate-minor: ``edges (W + 1, 1)``, ``x0, s (n,)``; writes
+    ``g, dg_dx0, dg_ds`` into ``out[0], out[1], out[2]``, each ``(W, n)``."""
+    t = edges - x0
+    t *= 1.0 / s  # (W + 1, n): the edges in units of s
+    cdf = erf(t * _INV_SQRT2)  # 2 Φ(t) − 1
+    e = t * t
+    e *= -0.5
+    np.exp(e, out=e)  # √(2π) φ(t)
+    t *= e  # √(2π) t φ(t)
+    area = out[0]
+    np.subtract(cdf[1:], cdf[:-1], out=area)
+    area *= _ROOT_HALF_PI  # √(2π) [Φ(t1) − Φ(t0)]
+    np.subtract(area, t[1:], out=out[2])
+    out[2] += t[:-1]
+    area *= s  # g
+    np.subtract(e[:-1], e[1:], out=out[1])
+
+
+_EDGE_CACHE: dict[tuple[int, float, float], np.ndarray] = {}
+
+
+def _edges(x: np.ndarray) -> np.ndarray:
+    """Pixel edges ``x − ½`` and ``x[-1] + ½`` of consecutive pixel centres, ``(W + 1, 1)``, cached."""
+    key = (x.size, float(x[0]), float(x[-1]))
+    edges = _EDGE_CACHE.get(key)
+    if edges is None:
+        edges = np.append(x - 0.5, x[-1] + 0.5)[:, None]
+        edges.flags.writeable = False
+        if len(_EDGE_CACHE) < 64:
+            _EDGE_CACHE[key] = edges
+    return edges
 
 
 def model_1d(x: np.ndarray, p: np.ndarray):
@@ -82,11 +117,26 @@ def model_1d(x: np.ndarray, p: np.ndarray):
     mu : (n, W) array, DN
     jac : (n, W, 4) array
     """
-    a, x0, s, b = (p[:, i : i + 1] for i in range(4))
-    g, gx, gs = integrated_profile(x, x0, s)
-    mu = b + a * g
-    jac = np.stack([g, a * gx, a * gs, np.ones_like(g)], axis=-1)
-    return mu, jac
+    mu, jac = minor_model_1d(x)(np.asarray(p, float).T)
+    return mu.T, jac.transpose(2, 1, 0)
+
+
+def minor_model_1d(x: np.ndarray):
+    """:func:`model_1d` for :func:`fit_batch` with ``minor=True``: ``p (4, n)`` -> ``mu (W, n)``,
+    ``jac (4, W, n)``."""
+    edges = _edges(x)
+
+    def model(p):
+        a, x0, s, b = p
+        jac = np.empty((4, x.size, a.size))
+        _profile(edges, x0, s, jac)
+        jac[1:3] *= a
+        jac[3] = 1.0
+        mu = jac[0] * a
+        mu += b
+        return mu, jac
+
+    return model
 
 
 def model_2d(xu: np.ndarray, xv: np.ndarray, p: np.ndarray):
@@ -106,20 +156,39 @@ def model_2d(xu: np.ndarray, xv: np.ndarray, p: np.ndarray):
     mu : (n, Wv * Wu) array, DN
     jac : (n, Wv * Wu, 6) array
     """
-    a, u0, v0, su, sv, b = (p[:, i : i + 1] for i in range(6))
-    gu, gu_x, gu_s = (t[:, None, :] for t in integrated_profile(xu, u0, su))
-    gv, gv_x, gv_s = (t[:, :, None] for t in integrated_profile(xv, v0, sv))
-    a = a[:, :, None]
-    n = p.shape[0]
-    jac = np.empty((n, xv.size, xu.size, 6))
-    jac[..., 0] = gu * gv
-    jac[..., 1] = (a * gu_x) * gv
-    jac[..., 2] = (a * gu) * gv_x
-    jac[..., 3] = (a * gu_s) * gv
-    jac[..., 4] = (a * gu) * gv_s
-    jac[..., 5] = 1.0
-    mu = b[:, :, None] + a * jac[..., 0]
-    return mu.reshape(n, -1), jac.reshape(n, -1, 6)
+    mu, jac = minor_model_2d(xu, xv)(np.asarray(p, float).T)
+    return mu.T, jac.transpose(2, 1, 0)
+
+
+def minor_model_2d(xu: np.ndarray, xv: np.ndarray):
+    """:func:`model_2d` for :func:`fit_batch` with ``minor=True``: ``p (6, n)`` -> ``mu (Wv·Wu, n)``,
+    ``jac (6, Wv·Wu, n)`` (pixel index ``row · Wu + column``)."""
+    edges_u, edges_v = _edges(xu), _edges(xv)
+    pick_v = [0, 0, 1, 0, 2]  # jac[k] = v-factor[k] × u-factor[k]: g, g, dg/dx0, g, dg/ds of v
+    pick_u = [0, 1, 0, 2, 0]  # ... and g, A dg/dx0, A g, A dg/ds, A g of u (the first without A)
+
+    def model(p):
+        a, b = p[0], p[5]
+        n = a.size
+        if edges_u is edges_v:  # one call for both axes: (3, W, 2n), u then v
+            both = np.empty((3, xu.size, 2 * n))
+            _profile(edges_u, p[1:3].reshape(-1), p[3:5].reshape(-1), both)
+            prof_u, prof_v = both[:, :, :n], both[:, :, n:]
+        else:
+            prof_u, prof_v = np.empty((3, xu.size, n)), np.empty((3, xv.size, n))
+            _profile(edges_u, p[1], p[3], prof_u)
+            _profile(edges_v, p[2], p[4], prof_v)
+        factor_u = np.take(prof_u * a, pick_u, axis=0)  # (5, Wu, n)
+        factor_u[0] = prof_u[0]
+        jac = np.empty((6, xv.size, xu.size, n))
+        np.multiply(np.take(prof_v, pick_v, axis=0)[:, :, None], factor_u[:, None], out=jac[:5])
+        jac[5] = 1.0
+        jac = jac.reshape(6, -1, n)
+        mu = jac[0] * a
+        mu += b
+        return mu, jac
+
+    return model
 
 
 @dataclass(frozen=True)
@@ -138,9 +207,10 @@ class FitResult:
     dof : (n,) int array
         Fitted pixels minus parameters.
     jac : (n, M, P) float array
-        Jacobian at the solution, zero on pixels outside the mask.
+        Jacobian at the solution, zero on pixels outside the mask (a transposed view of the
+        candidate-minor ``(P, M, n)`` array the fit works on).
     residuals : (n, M) float array, DN
-        Data minus model, zero outside the mask.
+        Data minus model, zero outside the mask (a view of an ``(M, n)`` array).
     """
 
     params: np.ndarray
@@ -152,7 +222,7 @@ class FitResult:
 
 
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
-              upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5) -> FitResult:
+              upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False) -> FitResult:
     """Levenberg–Marquardt least squares for a stack of independent windows.
 
     Each candidate iterates until an accepted step lowers its cost by less than ``tol`` (relative)
@@ -162,11 +232,13 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     Parameters
     ----------
     model : callable
-        ``model(p) -> (mu (n, M), jac (n, M, P))`` for any subset of candidates ``p (n, P)``.
+        ``model(p) -> (mu (n, M), jac (n, M, P))`` for any subset of candidates ``p (n, P)``; with
+        ``minor``, ``model(p (P, n)) -> (mu (M, n), jac (P, M, n))`` (:func:`minor_model_1d`,
+        :func:`minor_model_2d`), which is faster.
     y : (n, M) float array, DN
-        Windows, flattened.
+        Windows, flattened; ``(M, n)`` with ``minor``.
     mask : (n, M) bool array
-        Pixels that take part in the fit.
+        Pixels that take part in the fit; ``(M, n)`` with ``minor``.
     p0 : (n, P) float array
         Start values.
     lower, upper : (P,) float arrays
@@ -175,61 +247,178 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         Most iterations.
     tol : float
         Relative cost decrease below which a candidate has converged.
+    minor : bool
+        Model, data and mask are candidate-minor (see the module notes).
 
     Returns
     -------
     FitResult
     """
-    w = mask.astype(np.float64)
-    n, n_par = p0.shape
-    diag_idx = np.arange(n_par)
-    p = np.clip(p0, lower, upper)
+    if not minor:
+        user_model = model
+
+        def model(pt):
+            mu, jac = user_model(pt.T)
+            return mu.T, jac.transpose(2, 1, 0)
+
+        y, mask = y.T, mask.T
+    lower = np.asarray(lower, float)[:, None]
+    upper = np.asarray(upper, float)[:, None]
+    w = None if mask.all() else mask.astype(np.float64)  # None: every pixel is fitted
+    n_par, n = p0.shape[1], p0.shape[0]
+    p = np.array(np.asarray(p0).T, dtype=float, order="C")  # (P, n)
+    np.maximum(p, lower, out=p)  # (np.clip's Python wrapper costs more)
+    np.minimum(p, upper, out=p)
     mu, jac = model(p)
-    jac *= w[:, :, None]
-    r = (y - mu) * w
-    cost = np.einsum("nm,nm->n", r, r)
+    r = y - mu
+    if w is not None:
+        jac *= w
+        r *= w
+    cost = np.einsum("mn,mn->n", r, r)
     lam = np.full(n, _LAMBDA0)
     active = np.arange(n)
     for _ in range(n_iter):
         if active.size == 0:
             break
-        every = active.size == n  # no copies while every candidate still iterates
-        ja, ra = (jac, r) if every else (jac[active], r[active])
-        ya, wa, ca, la = (y, w, cost, lam) if every else (y[active], w[active], cost[active], lam[active])
-        jt = ja.transpose(0, 2, 1)
-        hess = jt @ ja
-        grad = (jt @ ra[:, :, None])[:, :, 0]
-        diag = hess[:, diag_idx, diag_idx]
-        hess[:, diag_idx, diag_idx] += la[:, None] * diag + 1e-12 * diag.max(axis=1, keepdims=True) + 1e-300
-        step = np.linalg.solve(hess, grad[:, :, None])[:, :, 0]
-        p_try = np.clip(p[active] + step, lower, upper)
+        if active.size == n:  # no copies while every candidate still iterates
+            ja, ra, pa, ya, wa, ca, la = jac, r, p, y, w, cost, lam
+        else:
+            ja, ra, pa, ya = (np.take(a, active, axis=-1) for a in (jac, r, p, y))
+            wa = None if w is None else np.take(w, active, axis=-1)
+            ca, la = cost[active], lam[active]
+        p_try = _marquardt_step(ja, ra, la)
+        p_try += pa
+        np.maximum(p_try, lower, out=p_try)
+        np.minimum(p_try, upper, out=p_try)
         mu_try, jac_try = model(p_try)
-        jac_try *= wa[:, :, None]
-        r_try = (ya - mu_try) * wa
-        cost_try = np.einsum("nm,nm->n", r_try, r_try)
+        r_try = ya - mu_try
+        if wa is not None:
+            jac_try *= wa
+            r_try *= wa
+        cost_try = np.einsum("mn,mn->n", r_try, r_try)
         better = cost_try < ca
         converged = better & (ca - cost_try <= tol * ca)
-        if every and better.all():
+        if active.size == n and better.all():
             p, jac, r, cost = p_try, jac_try, r_try, cost_try
         else:
             idx = active[better]
-            p[idx] = p_try[better]
-            jac[idx] = jac_try[better]
-            r[idx] = r_try[better]
+            p[:, idx] = p_try[:, better]
+            jac[..., idx] = jac_try[..., better]
+            r[:, idx] = r_try[:, better]
             cost[idx] = cost_try[better]
         lam[active] = np.where(better, la * _LAMBDA_DOWN, la * _LAMBDA_UP)
         active = active[~converged & (lam[active] < 1e10)]
-    jt = jac.transpose(0, 2, 1)
-    hess = jt @ jac
-    info_inv = np.full_like(hess, np.nan)
-    diag = hess[:, diag_idx, diag_idx]
-    # determinant of the correlation matrix: scale-free test for a (near-)singular information
+    info_inv = _spd_inverse(jac)
+    dof = mask.sum(axis=0) - n_par
+    return FitResult(p.T, info_inv, cost, dof, jac.transpose(2, 1, 0), r.T)
+
+
+#: From this many candidates on, the small symmetric systems are solved by a Cholesky factorisation
+#: written out entry by entry over the candidate axis (a few NumPy operations per matrix entry,
+#: each on all candidates at once), which beats LAPACK's per-matrix calls; below, LAPACK has less
+#: overhead.
+_UNROLLED_MIN = 16
+
+
+def _marquardt_step(jac: np.ndarray, r: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Levenberg–Marquardt step ``(P, k)``: the solution of ``(JᵀJ + λ diag(JᵀJ) + ε) δ = Jᵀr``
+    for the candidate-minor ``jac (P, M, k)``, ``r (M, k)``, ``lam (k,)``; a new array."""
+    n_par, _, k = jac.shape
+    if k < _UNROLLED_MIN:  # (k, P, P) stacks for LAPACK
+        jt = jac.transpose(2, 0, 1)
+        hess = jt @ jac.transpose(2, 1, 0)
+        grad = jt @ r.T[:, :, None]
+        diag = hess.reshape(k, -1)[:, :: n_par + 1]  # a view: the diagonals, (k, P)
+        diag += lam[:, None] * diag + 1e-12 * diag.max(axis=1, keepdims=True) + 1e-300
+        return np.linalg.solve(hess, grad)[:, :, 0].T.copy()
+    hess = np.einsum("imn,jmn->ijn", jac, jac)  # (P, P, k): each entry one contiguous (k,) array
+    grad = np.einsum("imn,mn->in", jac, r)
+    diag = hess.reshape(n_par * n_par, -1)[:: n_par + 1]  # a view: the diagonals, (P, k)
+    diag += lam * diag + 1e-12 * diag.max(axis=0) + 1e-300
+    return _cholesky_solve(hess, grad)
+
+
+def _cholesky(h: np.ndarray):
+    """Lower Cholesky factors of a stack ``(P, P, n)`` of symmetric matrices, as nested lists
+    ``low[i][j]`` (j ≤ i) of ``(n,)`` arrays, and the reciprocals of the diagonal. A matrix that is
+    not positive definite gets NaN entries."""
+    size = h.shape[0]
+    low = [[None] * size for _ in range(size)]
+    inv_diag = []
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(size):
+            s = h[j, j]
+            for k in range(j):
+                s = s - low[j][k] * low[j][k]
+            d = np.sqrt(s)
+            low[j][j] = d
+            inv_diag.append(1.0 / d)
+            for i in range(j + 1, size):
+                s = h[i, j]
+                for k in range(j):
+                    s = s - low[i][k] * low[j][k]
+                low[i][j] = s * inv_diag[j]
+    return low, inv_diag
+
+
+def _cholesky_solve(h: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solution ``x (P, n)`` of ``h x = b`` for a stack ``h (P, P, n)`` of symmetric positive
+    definite matrices and ``b (P, n)``; a new array."""
+    size, n = b.shape
+    low, inv_diag = _cholesky(h)
+    z = []
+    for i in range(size):  # L z = b
+        s = b[i]
+        for k in range(i):
+            s = s - low[i][k] * z[k]
+        z.append(s * inv_diag[i])
+    x = np.empty((size, n))
+    for i in reversed(range(size)):  # Lᵀ x = z
+        s = z[i]
+        for k in range(i + 1, size):
+            s = s - low[k][i] * x[k]
+        np.multiply(s, inv_diag[i], out=x[i])
+    return x
+
+
+def _spd_inverse(jac: np.ndarray) -> np.ndarray:
+    """Inverses ``(n, P, P)`` of the information matrices ``JᵀJ`` of the candidate-minor
+    ``jac (P, M, n)``; NaN where (near-)singular: where the determinant of the correlation matrix,
+    ``det / ∏ diagonal``, is at most 1e-12."""
+    size, _, n = jac.shape
+    if n < _UNROLLED_MIN:
+        h = jac.transpose(2, 0, 1) @ jac.transpose(2, 1, 0)  # (n, P, P)
+        out = np.full_like(h, np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = np.linalg.det(h) / np.prod(h.reshape(n, -1)[:, :: size + 1], axis=1) > 1e-12
+        if ok.any():
+            out[ok] = np.linalg.inv(h[ok])
+        return out
+    h = np.einsum("imn,jmn->ijn", jac, jac)
+    diag = h.reshape(size * size, n)[:: size + 1]
+    out = np.empty((n, size, size))
+    low, inv_diag = _cholesky(h)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ok = np.linalg.det(hess) / np.prod(diag, axis=1) > 1e-12
-    if ok.any():
-        info_inv[ok] = np.linalg.inv(hess[ok])
-    dof = mask.sum(axis=1) - n_par
-    return FitResult(p, info_inv, cost, dof, jac, r)
+        ratio = np.prod(np.square([low[j][j] for j in range(size)]) / diag, axis=0)
+    ok = ratio > 1e-12  # NaN (not positive definite) is not ok either
+    m = [[None] * size for _ in range(size)]  # m = L⁻¹ (lower triangular); h⁻¹ = mᵀ m
+    for i in range(size):
+        m[i][i] = inv_diag[i]
+        for j in range(i):
+            s = low[i][j] * m[j][j]
+            for k in range(j + 1, i):
+                s = s + low[i][k] * m[k][j]
+            m[i][j] = -s * inv_diag[i]
+    for i in range(size):
+        for j in range(i + 1):
+            s = m[i][i] * m[i][j]
+            for k in range(i + 1, size):
+                s = s + m[k][i] * m[k][j]
+            out[:, i, j] = s
+            if j != i:
+                out[:, j, i] = s
+    out[~ok] = np.nan
+    return out
 
 
 #: Significance level above which a window's χ² is taken as model misfit (not noise).
@@ -258,11 +447,21 @@ def misfit_scale(chi2_unit: np.ndarray, dof: np.ndarray, noise_sigma: float) -> 
     (n,) float array
         Factor ≥ 1 for the covariance.
     """
-    from scipy.special import chdtri  # inverse survival function of χ²: fast, no scipy.stats
-
     dof = np.maximum(dof, 1)
     reduced = chi2_unit / noise_sigma**2 / dof
-    return np.where(reduced > chdtri(dof, 1.0 - MISFIT_LEVEL) / dof, reduced, 1.0)
+    table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
+    return np.where(reduced > _misfit_limits(table_size)[dof - 1], reduced, 1.0)
+
+
+@functools.lru_cache(maxsize=16)
+def _misfit_limits(max_dof: int) -> np.ndarray:
+    """χ²/dof at the ``MISFIT_LEVEL`` quantile for dof = 1 .. ``max_dof`` (chdtri is slow)."""
+    from scipy.special import chdtri  # inverse survival function of χ²: no scipy.stats
+
+    dof = np.arange(1, max_dof + 1)
+    limits = chdtri(dof, 1.0 - MISFIT_LEVEL) / dof
+    limits.flags.writeable = False
+    return limits
 
 
 #: The shot-noise slope is used only when it exceeds this many standard errors.
@@ -295,33 +494,40 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray) -> np.ndarray:
     (n, P, P) float array
         Covariance of the parameters (units of the parameters). NaN where singular.
     """
-    jac, r, info = res.jac, res.residuals, res.info_inv
-    fitted = jac[:, :, -1] != 0  # the background derivative is 1 on every fitted pixel
-    base_var = (noise_sigma**2)[:, None]
-    signal = res.params[:, :1] * jac[:, :, 0]
+    jac = res.jac.transpose(2, 1, 0)  # candidate-minor (P, M, n), as the fit made it
+    r, info = res.residuals.T, res.info_inv  # (M, n), (n, P, P)
+    fitted = jac[-1] != 0  # the background derivative is 1 on every fitted pixel
+    base_var = noise_sigma**2
+    signal = jac[0] * res.params[:, 0]
     good = np.all(np.isfinite(info), axis=(1, 2))
     usable = np.flatnonzero(good)  # the pooled slope needs only an evenly spread sample of them
-    good[:] = False
-    good[usable[:: max(1, usable.size // _SLOPE_SAMPLE)]] = True
+    sample = usable[:: max(1, usable.size // _SLOPE_SAMPLE)]
     slope = 0.0
-    if good.any():
-        jg = jac[good]
-        leverage = ((jg @ info[good]) * jg).sum(axis=2)
-        f = fitted[good] & (leverage < 0.9)
-        x = signal[good][f]
-        t = r[good][f] ** 2 / (1.0 - leverage[f]) - np.broadcast_to(base_var[good], f.shape)[f]
+    if sample.size:
+        jg = np.take(jac, sample, axis=-1)  # (P, M, k)
+        if sample.size < _UNROLLED_MIN:
+            jk = jg.transpose(2, 1, 0)  # (k, M, P)
+            leverage = ((jk @ info[sample]) * jk).sum(axis=2).T
+        else:
+            info_t = np.ascontiguousarray(info[sample].transpose(1, 2, 0))  # (P, P, k)
+            leverage = np.einsum("jmk,jmk->mk", np.einsum("imk,ijk->jmk", jg, info_t), jg)
+        f = np.take(fitted, sample, axis=1) & (leverage < 0.9)
+        var_sample = base_var[sample]
+        x = np.take(signal, sample, axis=1)[f]
+        t = np.take(r, sample, axis=1)[f] ** 2 / (1.0 - leverage[f]) - (np.zeros(f.shape) + var_sample)[f]
         sxx = float(np.dot(x, x))
         if sxx > 0:
             slope = float(np.dot(x, t)) / sxx
-            standard_error = np.sqrt(2.0) * float(np.mean(base_var[good])) / np.sqrt(sxx)
+            standard_error = np.sqrt(2.0) * (float(var_sample.sum()) / var_sample.size) / np.sqrt(sxx)
             if slope < SHOT_NOISE_SIGNIFICANCE * standard_error:
                 slope = 0.0
-    pixel_var = np.where(fitted, base_var + slope * np.maximum(signal, 0.0), 0.0)
     if slope > 0.0:
-        meat = jac.transpose(0, 2, 1) @ (jac * pixel_var[:, :, None])
+        pixel_var = np.where(fitted, base_var + slope * np.maximum(signal, 0.0), 0.0)
+        meat = np.einsum("imn,jmn->nij", jac, jac * pixel_var)
         cov = info @ meat @ info
     else:
-        cov = base_var[:, :, None] * info
+        pixel_var = np.where(fitted, base_var, 0.0)
+        cov = base_var[:, None, None] * info
     with np.errstate(divide="ignore", invalid="ignore"):
-        chi2_normalised = np.where(fitted, r**2 / pixel_var, 0.0).sum(axis=1)
+        chi2_normalised = np.where(fitted, r**2 / pixel_var, 0.0).sum(axis=0)
     return cov * misfit_scale(chi2_normalised, res.dof, 1.0)[:, None, None]

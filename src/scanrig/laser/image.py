@@ -15,6 +15,7 @@ saturated core with coloured fringes is one trace, not two fringes.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -244,8 +245,11 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
         Only when ``local``.
     """
     rows, high_pass = _high_pass_bands(signal)
-    magnitude = np.abs(high_pass)
-    bins = np.rint(magnitude / step).astype(np.int64).ravel()
+    magnitude = np.abs(high_pass)  # integer for integer data: exact, and a cheap histogram
+    if magnitude.dtype.kind == "i" and step == 1.0:
+        bins = magnitude.ravel()
+    else:
+        bins = np.rint(magnitude / step).astype(np.int64).ravel()
     counts = np.cumsum(np.bincount(bins))
     half = 0.5 * counts[-1]
     k = int(np.searchsorted(counts, half))
@@ -262,25 +266,40 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
 def _noise_cells(rows: np.ndarray, magnitude: np.ndarray, shape, sigma: float) -> np.ndarray:
     """Per-cell noise from the band rows and ``|h|`` (see :func:`estimate_noise`)."""
     import cv2
-    from scipy.special import erfc
 
-    c = _NOISE_CLIP
-    mag = np.minimum(magnitude, np.float32(c * np.sqrt(72.0) * sigma))
+    clip = np.float32(_NOISE_CLIP * np.sqrt(72.0) * sigma)
+    mag = np.minimum(magnitude.astype(np.float32, copy=False), clip)
     hc, wc = _cells_shape(shape, NOISE_CELL)
-    # columns 1 .. W-2 of the bands, padded with NaN to whole cells, summed per (band, cell column)
-    padded = np.full((mag.shape[0], wc * NOISE_CELL), np.nan, np.float32)
-    padded[:, 1 : 1 + mag.shape[1]] = mag
-    per_band = np.nanmean(padded.reshape(mag.shape[0], wc, NOISE_CELL), axis=2)
+    # mean of columns 1 .. W-2 of each band per cell column: zero-padded sums over counts
+    n_bands, n_cols = mag.shape
+    padded = np.zeros((n_bands, wc * NOISE_CELL), np.float32)
+    padded[:, 1 : 1 + n_cols] = mag
+    per_band = padded.reshape(n_bands, wc, NOISE_CELL).sum(axis=2)
+    edges = np.clip(np.arange(wc + 1) * NOISE_CELL, 1, 1 + n_cols)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a cell without columns: NaN, as a mean
+        np.true_divide(per_band, np.diff(edges), out=per_band, casting="unsafe")
+    # bands in order of rows, so each cell row's bands are consecutive: summed in that order
     row_cells = rows // NOISE_CELL
+    counts = np.bincount(row_cells, minlength=hc)
     sums = np.zeros((hc, wc))
-    np.add.at(sums, row_cells, per_band)
-    counts = np.bincount(row_cells, minlength=hc)[:, None]
-    expected_unit = np.sqrt(72.0) * (np.sqrt(2 / np.pi) * (1 - np.exp(-c * c / 2)) + c * erfc(c / np.sqrt(2)))
+    filled = np.flatnonzero(counts)
+    first_band = np.cumsum(counts)[filled] - counts[filled]
+    sums[filled] = np.add.reduceat(per_band.astype(np.float64), first_band, axis=0)
+    counts = counts[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        cells = np.where(counts > 0, sums / counts / expected_unit, sigma).astype(np.float32)
+        cells = np.where(counts > 0, sums / counts / _expected_clipped_abs(), sigma).astype(np.float32)
     if min(hc, wc) >= 3:
         cells = cv2.medianBlur(cells, 5)
     return np.maximum(cells, np.float32(QUANTIZATION_SIGMA))
+
+
+@functools.lru_cache(maxsize=1)
+def _expected_clipped_abs() -> float:
+    """E min(|h|, c √72) for unit Gaussian noise (h of variance 72), c = ``_NOISE_CLIP``."""
+    from scipy.special import erfc
+
+    c = _NOISE_CLIP
+    return float(np.sqrt(72.0) * (np.sqrt(2 / np.pi) * (1 - np.exp(-c * c / 2)) + c * erfc(c / np.sqrt(2))))
 
 
 def _high_pass_bands(signal: np.ndarray):
@@ -290,16 +309,15 @@ def _high_pass_bands(signal: np.ndarray):
     -------
     rows : (nb,) int array
         Centre row of each band.
-    high_pass : (nb, W - 2) float32 array, DN
-        Columns 1 .. W-2.
+    high_pass : (nb, W - 2) array, DN
+        Columns 1 .. W-2; int16 (8-bit data), int32 (16-bit) or float32 (exact in each).
     """
-    step = int(np.clip(signal.shape[0] // _MIN_NOISE_BANDS, 3, _NOISE_BAND_STEP))  # small frames: denser
+    step = min(max(signal.shape[0] // _MIN_NOISE_BANDS, 3), _NOISE_BAND_STEP)  # small frames: denser
     starts = np.arange(1, signal.shape[0] - 1, step)
-    rows = signal[np.concatenate([starts - 1, starts, starts + 1])].astype(np.float32)
-    above, centre, below = np.split(rows, 3)
+    work = {np.dtype(np.uint8): np.int16, np.dtype(np.uint16): np.int32}.get(signal.dtype, np.float32)
+    above, centre, below = (signal[starts + d].astype(work) for d in (-1, 0, 1))
     col3 = above + centre + below
-    box = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
-    return starts, 9.0 * centre[:, 1:-1] - box
+    return starts, 9 * centre[:, 1:-1] - (col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:])
 
 
 def _cells_shape(shape, cell: int) -> tuple[int, int]:

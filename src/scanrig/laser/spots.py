@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, model_2d, parameter_covariance
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_2d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.peaks import Candidates, find_candidates, suppress_2d
 from scanrig.laser.traces import empty_table, make_table
@@ -101,41 +101,50 @@ def detect_spots(
 
 
 def _fit_spots(li, cand: Candidates, max_width_px: float) -> dict[str, np.ndarray]:
-    """Fit a separable pixel-integrated Gaussian around every candidate; failed fits are dropped."""
+    """Fit a separable pixel-integrated Gaussian around every candidate; failed fits are dropped.
+    The windows are stacked candidate-minor, ``(Wv, Wu, n)`` (see :mod:`scanrig.laser.fit`)."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
     h, w = li.signal.shape
     if li.saturated is not None:
         cand = _centre_of_saturated_core(li.saturated, cand, offs)
-    rows = cand.v[:, None] + offs
-    cols = cand.u[:, None] + offs
-    inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
-    rr = np.clip(rows, 0, h - 1)[:, :, None]
-    cc = np.clip(cols, 0, w - 1)[:, None, :]
+    rows = offs[:, None] + cand.v
+    cols = offs[:, None] + cand.u
+    inside = ((rows >= 0) & (rows < h))[:, None, :] & ((cols >= 0) & (cols < w))[None, :, :]
+    rr = np.minimum(np.maximum(rows, 0), h - 1)[:, None, :]
+    cc = np.minimum(np.maximum(cols, 0), w - 1)[None, :, :]
     y = li.signal[rr, cc].astype(np.float64)
     mask = inside & _nearest_mask(cand, offs)
-    saturated = np.zeros(y.shape, bool) if li.saturated is None else li.saturated[rr, cc]
-    mask &= ~saturated
+    saturated = None if li.saturated is None else li.saturated[rr, cc]
+    if saturated is not None:
+        mask &= ~saturated
     n = cand.u.size
     background = li.background_at(cand.u, cand.v).astype(np.float64)
     p0 = _start(y, background, half, max_width_px, saturated)
     lower = np.array([MIN_PEAK_DN, -half, -half, MIN_WIDTH_PX, MIN_WIDTH_PX, -np.inf])
     upper = np.array([np.inf, half, half, max_width_px, max_width_px, np.inf])
     x = offs.astype(float)
-    res = fit_batch(lambda p: model_2d(x, x, p), y.reshape(n, -1), mask.reshape(n, -1), p0, lower, upper)
+    res = fit_batch(minor_model_2d(x, x), y.reshape(-1, n), mask.reshape(-1, n), p0, lower, upper, minor=True)
     p = res.params
     noise = li.noise_at(cand.u, cand.v).astype(np.float64)
     cov = parameter_covariance(res, noise)[:, 1:3, 1:3]
     ok = (np.all(np.isfinite(cov), axis=(1, 2)) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX)
           & (np.abs(p[:, 2]) <= MAX_SHIFT_PX) & (res.dof > 0))
-    core = saturated[:, half - 1 : half + 2, half - 1 : half + 2].any(axis=(1, 2))
+    core = (np.zeros(n, bool) if saturated is None
+            else saturated[half - 1 : half + 2, half - 1 : half + 2].any(axis=(0, 1)))
     out = {
         "u": cand.u + p[:, 1], "v": cand.v + p[:, 2],
-        "sigma_px": np.sqrt(np.linalg.eigvalsh(np.where(ok[:, None, None], cov, 0.0))[:, -1]),
+        "sigma_px": np.sqrt(np.abs(_larger_eigenvalue(cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]))),
         "peak": p[:, 0], "width_px": np.sqrt(p[:, 3] * p[:, 4]), "snr": p[:, 0] / noise,
         "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1], "cov_vv": cov[:, 1, 1], "saturated": core,
     }
     return {k: a[ok] for k, a in out.items()}
+
+
+def _larger_eigenvalue(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Larger eigenvalue of the symmetric 2 × 2 matrices ``[[a, b], [b, c]]``."""
+    with np.errstate(invalid="ignore"):
+        return 0.5 * (a + c) + np.hypot(0.5 * (a - c), b)
 
 
 def _centre_of_saturated_core(saturated, cand: Candidates, offs) -> Candidates:
@@ -153,44 +162,48 @@ def _centre_of_saturated_core(saturated, cand: Candidates, offs) -> Candidates:
 
 
 def _nearest_mask(cand: Candidates, offs: np.ndarray) -> np.ndarray:
-    """(n, W, W) True where a window pixel is at least as near its own candidate as any other."""
+    """(W, W, n) True where a window pixel is at least as near its own candidate as any other."""
     n = cand.u.size
     if n < 2:
-        return np.ones((n, offs.size, offs.size), bool)
+        return np.ones((offs.size, offs.size, n), bool)
     du = cand.u[None, :] - cand.u[:, None]  # (n, n): other minus own
     dv = cand.v[None, :] - cand.v[:, None]
     reach = 2 * offs[-1]
     near = (np.abs(du) <= reach) & (np.abs(dv) <= reach)
     np.fill_diagonal(near, False)
     i, j = np.nonzero(near)  # pairs of candidates within two windows of each other: few
+    mask = np.ones((offs.size, offs.size, n), bool)
+    if i.size == 0:
+        return mask
     own_d2 = offs[:, None] ** 2 + offs[None, :] ** 2
     other_d2 = ((offs[None, :, None] - dv[i, j][:, None, None]) ** 2
                 + (offs[None, None, :] - du[i, j][:, None, None]) ** 2)
-    mask = np.ones((n, offs.size, offs.size), bool)
-    np.logical_and.at(mask, i, own_d2[None] <= other_d2)
+    nearer = np.ones((n, offs.size, offs.size), bool)
+    np.logical_and.at(nearer, i, own_d2[None] <= other_d2)
+    mask[...] = nearer.transpose(1, 2, 0)
     return mask
 
 
 def _start(y: np.ndarray, background: np.ndarray, half: int, max_width_px: float,
-           saturated: np.ndarray) -> np.ndarray:
-    """Start values: peak, centroid and width from the excess volume of the 5 × 5 core; for a
-    clipped core, width and peak from the areas above the clip level and above half of it
-    (``A exp(−r²/2s²)`` crosses each level on a circle of area π r²)."""
-    core = y[:, half - 2 : half + 3, half - 2 : half + 3] - background[:, None, None]
+           saturated: np.ndarray | None) -> np.ndarray:
+    """Start values ``(n, 6)`` from windows ``y (Wv, Wu, n)``: peak, centroid and width from the
+    excess volume of the 5 × 5 core; for a clipped core, width and peak from the areas above the
+    clip level and above half of it (``A exp(−r²/2s²)`` crosses each level on a circle of area π r²)."""
+    core = y[half - 2 : half + 3, half - 2 : half + 3] - background
     excess = np.clip(core, 0.0, None)
-    peak = np.maximum(core.max(axis=(1, 2)), 1e-3)
-    total = np.maximum(excess.sum(axis=(1, 2)), 1e-9)
-    grid = np.arange(-2, 3, dtype=float)
-    u0 = (excess.sum(axis=1) * grid).sum(axis=1) / total
-    v0 = (excess.sum(axis=2) * grid).sum(axis=1) / total
+    peak = np.maximum(core.max(axis=(0, 1)), 1e-3)
+    total = np.maximum(excess.sum(axis=(0, 1)), 1e-9)
+    grid = np.arange(-2.0, 3.0)[:, None]
+    u0 = (excess.sum(axis=0) * grid).sum(axis=0) / total
+    v0 = (excess.sum(axis=1) * grid).sum(axis=0) / total
     width = np.sqrt(total / (2.0 * np.pi * peak))
-    clipped = saturated[:, half, half]
-    if clipped.any():
-        ys, sat, bg = y[clipped], saturated[clipped], background[clipped, None, None]
+    clipped = None if saturated is None else saturated[half, half]
+    if clipped is not None and clipped.any():
+        ys, sat, bg = y[:, :, clipped], saturated[:, :, clipped], background[clipped]
         # the clip level in signal units (a lower bound when the signal mixes channels)
-        level = np.where(sat, ys, np.inf).min(axis=(1, 2)) - bg[:, 0, 0]
-        r2_sat = sat.sum(axis=(1, 2)) / np.pi
-        r2_half = (ys - bg >= level[:, None, None] / 2).sum(axis=(1, 2)) / np.pi
+        level = np.where(sat, ys, np.inf).min(axis=(0, 1)) - bg
+        r2_sat = sat.sum(axis=(0, 1)) / np.pi
+        r2_half = (ys - bg >= level / 2).sum(axis=(0, 1)) / np.pi
         width[clipped] = np.sqrt(np.maximum(r2_half - r2_sat, 0.25) / (2 * np.log(2.0)))
         peak[clipped] = level * np.exp(np.minimum(r2_sat / (2 * width[clipped] ** 2), 5.0))
         u0[clipped] = v0[clipped] = 0.0

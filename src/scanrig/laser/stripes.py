@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.errors import InputError
-from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, model_1d, parameter_covariance
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.peaks import BLOCK, find_candidates, prescan, scan_direction_map, suppress_on_lines
 from scanrig.laser.traces import empty_table, make_table
@@ -147,31 +147,32 @@ def _detect_along(li, along, blocks, excess, k_detect, min_separation_px, max_wi
 
 
 def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px) -> dict[str, np.ndarray]:
-    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped."""
+    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped.
+    The windows are stacked candidate-minor, ``(W, n)`` (see :mod:`scanrig.laser.fit`)."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
     n_pos = signal.shape[1]
     if saturated is not None:
         pos = _centre_of_saturated_run(saturated, line, pos, offs)
-    idx = pos[:, None] + offs
+    idx = offs[:, None] + pos
     inside = (idx >= 0) & (idx < n_pos)
-    idx = np.clip(idx, 0, n_pos - 1)
-    y = signal[line[:, None], idx].astype(np.float64)
+    np.clip(idx, 0, n_pos - 1, out=idx)
+    y = signal[line, idx].astype(np.float64)
     mask = inside & _nearest_on_line(line, pos, offs)
-    sat = np.zeros(y.shape, bool) if saturated is None else saturated[line[:, None], idx]
-    mask &= ~sat
+    sat = None if saturated is None else saturated[line, idx]
+    if sat is not None:
+        mask &= ~sat
     p0 = _start(y, background.astype(np.float64), half, max_width_px, sat)
     lower = np.array([MIN_PEAK_DN, -half, MIN_WIDTH_PX, -np.inf])
     upper = np.array([np.inf, half, max_width_px, np.inf])
-    x = offs.astype(float)
-    res = fit_batch(lambda p: model_1d(x, p), y, mask, p0, lower, upper)
+    res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True)
     p = res.params
     var = parameter_covariance(res, noise)[:, 1, 1]
     ok = np.isfinite(var) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX) & (res.dof > 0)
     out = {
         "line": line, "centre": pos + p[:, 1], "var": var, "sigma_px": np.sqrt(np.abs(var)),
         "peak": p[:, 0], "width_px": p[:, 2], "snr": p[:, 0] / noise,
-        "saturated": sat[:, half - 1 : half + 2].any(axis=1),
+        "saturated": np.zeros(line.size, bool) if sat is None else sat[half - 1 : half + 2].any(axis=0),
     }
     return {k: a[ok] for k, a in out.items()}
 
@@ -187,16 +188,17 @@ def _centre_of_saturated_run(saturated, line, pos, offs) -> np.ndarray:
 
 
 def _nearest_on_line(line, pos, offs) -> np.ndarray:
-    """(n, W) True where a window pixel is nearer its own peak than the neighbouring peaks on the
+    """(W, n) True where a window pixel is nearer its own peak than the neighbouring peaks on the
     same line (candidates sorted by line, then position)."""
     if line.size == 0:
-        return np.ones((0, offs.size), bool)
+        return np.ones((offs.size, 0), bool)
     big = 10 * offs.size
     same_prev = np.r_[False, line[1:] == line[:-1]]
     same_next = np.r_[line[1:] == line[:-1], False]
     gap_prev = np.where(same_prev, np.r_[big, pos[1:] - pos[:-1]], big)
     gap_next = np.where(same_next, np.r_[pos[1:] - pos[:-1], big], big)
-    return (2 * offs[None, :] > -gap_prev[:, None]) & (2 * offs[None, :] < gap_next[:, None])
+    twice = 2 * offs[:, None]
+    return (twice > -gap_prev) & (twice < gap_next)
 
 
 #: Widths tried for the start of a fit whose core is clipped, pixels.
@@ -204,22 +206,24 @@ _CLIPPED_START_WIDTHS = np.array([0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0])
 
 
 def _start(y, background, half, max_width_px, saturated) -> np.ndarray:
-    """Start values: peak, centroid and width from the excess area of the ±2 px core.
+    """Start values ``(n, 4)`` from windows ``y (W, n)``: peak, centroid and width from the excess
+    area of the ±2 px core.
 
     A clipped core has no usable peak or area; there the centre starts at the middle of the
     clipped run and the width at the best of a few trial widths, each with peak and background
     solved linearly from the unclipped pixels.
     """
-    core = y[:, half - 2 : half + 3] - background[:, None]
+    core = y[half - 2 : half + 3] - background
     excess = np.clip(core, 0.0, None)
-    peak = np.maximum(core.max(axis=1), 1e-3)
-    total = np.maximum(excess.sum(axis=1), 1e-9)
-    x0 = (excess * np.arange(-2, 3)).sum(axis=1) / total
+    peak = np.maximum(core.max(axis=0), 1e-3)
+    total = np.maximum(excess.sum(axis=0), 1e-9)
+    x0 = (excess * np.arange(-2.0, 3.0)[:, None]).sum(axis=0) / total
     width = total / (np.sqrt(2 * np.pi) * peak)
     start = np.stack([peak, x0, np.clip(width, 0.5, max_width_px), background], axis=1)
-    clipped = saturated[:, half]
-    if clipped.any():
-        start[clipped] = _clipped_start(y[clipped], saturated[clipped], half, max_width_px)
+    if saturated is not None:
+        clipped = saturated[half]
+        if clipped.any():
+            start[clipped] = _clipped_start(y[:, clipped].T, saturated[:, clipped].T, half, max_width_px)
     return start
 
 
@@ -257,6 +261,8 @@ def _strongest_per_line(line, score, keep, max_per_line) -> np.ndarray:
 
 def _rank_on_lines(line, peak) -> np.ndarray:
     """0 for the brightest peak of each line, 1 for the next, ... (int32)."""
+    if np.all(line[1:] > line[:-1]):  # the usual case: one peak per line, lines in order
+        return np.zeros(line.size, np.int32)
     order = np.lexsort((-peak, line))
     sorted_lines = line[order]
     start = np.r_[0, np.flatnonzero(sorted_lines[1:] != sorted_lines[:-1]) + 1]

@@ -55,12 +55,19 @@ def make_table(kind: str, columns: dict[str, np.ndarray], camera: str = "", fram
         With :data:`SCHEMA`.
     """
     n = len(columns["u"])
-    arrays = {"camera": pa.array([camera] * n, pa.string()), "frame": pa.array([frame] * n, pa.string()),
-              "kind": pa.array([kind] * n, pa.string())}
-    for field in SCHEMA:
-        if field.name not in arrays:
-            arrays[field.name] = pa.array(np.asarray(columns[field.name]), field.type)
-    return pa.Table.from_pydict(arrays, schema=SCHEMA)
+    text = {"camera": camera, "frame": frame, "kind": kind}
+    arrays = [_repeated_string(text[field.name], n) if field.name in text
+              else pa.array(np.asarray(columns[field.name]), field.type) for field in SCHEMA]
+    return pa.Table.from_arrays(arrays, schema=SCHEMA)
+
+
+def _repeated_string(value: str, n: int) -> pa.Array:
+    """A string array of ``n`` copies of ``value``, built from its buffers (no Python list)."""
+    data = value.encode()
+    if len(data) * n >= 2**31:  # beyond 32-bit offsets
+        return pa.array([value] * n, pa.string())
+    offsets = np.arange(n + 1, dtype=np.int32) * np.int32(len(data))
+    return pa.StringArray.from_buffers(n, pa.py_buffer(offsets), pa.py_buffer(data * n))
 
 
 def empty_table() -> pa.Table:
