@@ -172,3 +172,89 @@ def stripe_traces(rig: Rig, offsets_m, rng: np.random.Generator, sigma_px: float
                                     ("saturated", np.zeros(n, bool))):
                     cols[name] += list(value)
     return pa.Table.from_pydict(cols, schema=SCHEMA)
+
+
+def plane_curve(normal, offset_m: float, t_range=(-0.15, 0.15), n: int = 6000, half_m: float = 0.15):
+    """Where the plane ``normal · p = offset_m`` meets :func:`height_field`, sampled along it.
+
+    The curve is parametrised by ``t`` along the plane's horizontal direction; the height is
+    solved by fixed-point iteration (the surface is gentle). Points outside the surface patch
+    ``|x|, |y| <= half_m`` are dropped.
+
+    Returns
+    -------
+    ndarray of shape (M, 3)
+        Points of the curve in order, metres.
+    """
+    nrm = np.asarray(normal, np.float64)
+    nrm = nrm / np.linalg.norm(nrm)
+    u = np.cross(nrm, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(nrm, u)
+    base = offset_m * nrm + np.linspace(*t_range, n)[:, None] * u
+    lam = np.zeros(n)
+    for _ in range(30):
+        p = base + lam[:, None] * w
+        lam = lam + (height_field(p[:, 0], p[:, 1]) - p[:, 2]) / w[2]
+    p = base + lam[:, None] * w
+    inside = np.all(np.abs(p[:, :2]) <= half_m, axis=1)
+    return p[inside]
+
+
+def curve_traces(rig: Rig, curves, rng: np.random.Generator, sigma_px: float):
+    """Stripe traces of 3-D curves as the stripe detector reports them, with ranks by brightness.
+
+    Parameters
+    ----------
+    rig : Rig
+    curves : list of (frame, points (M, 3), peak)
+        Lit curves on the surface: the light plane's stripe, and secondary reflections (curves
+        on the surface that are *not* on the light plane; every camera that looks there sees
+        them, consistently in 3-D). ``peak`` orders the candidates of a scan line (rank 0 =
+        brightest).
+    rng : numpy.random.Generator
+    sigma_px : float
+        Noise of the measured coordinate along the scan line.
+
+    Each camera scans rows where its image of the curve runs more vertically than horizontally
+    (``v`` exact, noise on ``u``, ``cov_vv = 0``) and columns otherwise, like the detector.
+
+    Returns
+    -------
+    table : pyarrow.Table
+    """
+    import pyarrow as pa
+
+    from scanrig.laser.traces import SCHEMA
+
+    per_line = {}  # (camera, frame, rows?, line) -> list of (measured, peak)
+    for frame, points, peak in curves:
+        for cam in rig.cameras:
+            q = cam.project(points)
+            q = q[np.all(np.isfinite(q), axis=1)]
+            if len(q) < 2:
+                continue
+            rows = abs(q[-1, 1] - q[0, 1]) >= abs(q[-1, 0] - q[0, 0])
+            along, across = (q[:, 1], q[:, 0]) if rows else (q[:, 0], q[:, 1])
+            order = np.argsort(along)
+            if np.any(np.diff(along[order]) == 0) or not (np.all(np.diff(along) > 0) or np.all(np.diff(along) < 0)):
+                raise ValueError(f"curve not monotonic along the scan lines of {cam.name}")
+            lines = np.arange(np.ceil(along.min()), np.floor(along.max()) + 1)
+            size_along, size_across = (HEIGHT, WIDTH) if rows else (WIDTH, HEIGHT)
+            lines = lines[(lines >= 0) & (lines <= size_along - 1)]
+            pos = np.interp(lines, along[order], across[order])
+            inside = (pos >= 0) & (pos <= size_across - 1)
+            lines, pos = lines[inside], pos[inside] + rng.normal(0.0, sigma_px, inside.sum())
+            for line, x in zip(lines, pos):
+                per_line.setdefault((cam.name, frame, rows, int(line)), []).append((x, peak))
+    cols = {f.name: [] for f in SCHEMA}
+    for (camera, frame, rows, line), cands in per_line.items():
+        cands.sort(key=lambda c: -c[1])
+        for rank, (x, peak) in enumerate(cands):
+            u, v = (x, float(line)) if rows else (float(line), x)
+            values = dict(camera=camera, frame=frame, kind="stripe", u=u, v=v, sigma_px=sigma_px, peak=peak,
+                          width_px=1.5, snr=60.0, rank=rank, cov_uu=sigma_px**2 if rows else 0.0, cov_uv=0.0,
+                          cov_vv=0.0 if rows else sigma_px**2, line=line, saturated=False)
+            for name, value in values.items():
+                cols[name].append(value)
+    return pa.Table.from_pydict(cols, schema=SCHEMA)

@@ -13,6 +13,7 @@ there, from the least-squares regression formula.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,8 @@ RANSAC_TRIALS = 200
 INLIER_SIGMAS = 3.0
 #: Fewest inliers for a plane to be trusted (a stripe frame has hundreds).
 MIN_PLANE_POINTS = 10
+#: Blocks of the jackknife that measures a plane's uncertainty under correlated errors.
+JACKKNIFE_BLOCKS = 10
 
 
 @dataclass(frozen=True)
@@ -47,7 +50,8 @@ class LightPlane:
         ``Σ ((p − centroid) · axis)²`` over the inliers, m².
     residual_m : float
         RMS distance of the inliers to the plane, metres.
-    n_inliers : int
+    n_inliers : int or float
+        Inliers of the fit (an effective, smaller number after :func:`with_block_uncertainty`).
     """
 
     normal: np.ndarray
@@ -56,7 +60,7 @@ class LightPlane:
     axes: np.ndarray
     spread_m2: np.ndarray
     residual_m: float
-    n_inliers: int
+    n_inliers: float
 
     def distance(self, p_world: np.ndarray) -> np.ndarray:
         """Signed distances ``(N,)`` of points ``(N, 3)`` to the plane, metres."""
@@ -77,7 +81,11 @@ def fit_plane(p_world: np.ndarray, weights: np.ndarray | None = None) -> LightPl
     p_world : ndarray of shape (N, 3)
         Points, N >= 3, metres.
     weights : ndarray of shape (N,), optional
-        Non-negative weights (inverse variances of the distances).
+        Non-negative weights (inverse variances of the distances). With weights the plane's
+        ``residual_m`` is the weighted RMS distance and ``spread_m2`` is ``N`` times the weighted
+        mean square along each axis, so that :meth:`LightPlane.offset_sigma` is the weighted
+        least-squares standard deviation of the plane's position (scaled by the observed
+        residuals); without weights both are the plain sums.
 
     Raises
     ------
@@ -88,7 +96,8 @@ def fit_plane(p_world: np.ndarray, weights: np.ndarray | None = None) -> LightPl
     w = np.ones(len(p)) if weights is None else np.asarray(weights, np.float64)
     if len(p) < 3:
         raise EstimationError(f"a plane needs at least 3 points, got {len(p)}")
-    centroid = (w[:, None] * p).sum(axis=0) / w.sum()
+    w_mean = w / w.sum()
+    centroid = (w_mean[:, None] * p).sum(axis=0)
     rel = p - centroid
     M = (w[:, None] * rel).T @ rel
     eigval, eigvec = np.linalg.eigh(M)
@@ -97,27 +106,37 @@ def fit_plane(p_world: np.ndarray, weights: np.ndarray | None = None) -> LightPl
     normal = eigvec[:, 0]
     axes = eigvec[:, 1:].T
     dist = rel @ normal
-    spread = ((rel @ axes.T) ** 2).sum(axis=0)
+    spread = len(p) * (w_mean[:, None] * (rel @ axes.T) ** 2).sum(axis=0)
     return LightPlane(normal, float(centroid @ normal), centroid, axes, spread,
-                      float(np.sqrt(np.mean(dist**2))), len(p))
+                      float(np.sqrt(np.sum(w_mean * dist**2))), len(p))
 
 
-def fit_plane_robust(p_world: np.ndarray, sigma_m: np.ndarray, rng: np.random.Generator,
-                     inlier_sigmas: float = INLIER_SIGMAS, trials: int = RANSAC_TRIALS):
-    """RANSAC plane followed by two weighted least-squares refits on the inliers.
+def fit_plane_robust(p_world: np.ndarray, sigma_m: np.ndarray | None, rng: np.random.Generator,
+                     inlier_sigmas: float = INLIER_SIGMAS, trials: int = RANSAC_TRIALS,
+                     cov_m: np.ndarray | None = None):
+    """RANSAC plane followed by weighted least-squares refits on the inliers.
 
     Parameters
     ----------
     p_world : ndarray of shape (N, 3)
         Candidate points, metres.
-    sigma_m : ndarray of shape (N,)
+    sigma_m : ndarray of shape (N,) or None
         Standard deviation of each point along the plane normal (or its largest axis), metres.
+        May be None when ``cov_m`` is given.
     rng : numpy.random.Generator
         For the RANSAC samples.
     inlier_sigmas : float
         A point is an inlier when its distance is below ``inlier_sigmas · sqrt(σ² + σ_plane²)``.
     trials : int
         RANSAC samples.
+    cov_m : ndarray of shape (N, 3, 3), optional
+        Full covariances of the points, m². Then ``σ`` is each point's standard deviation along
+        the normal of the plane being tested (``nᵀ Σ n``): points that are precise across the
+        plane but not along it (triangulated with rays nearly in the plane) are weighted by what
+        they say about the plane, the samples are drawn from the points whose largest axis is
+        at most the median, and the points' own noise is taken out of the plane's in-plane
+        extent (:func:`_without_noise_spread`), so that a straight stripe is not mistaken for a
+        plane whose tilt it determines.
 
     Returns
     -------
@@ -126,12 +145,26 @@ def fit_plane_robust(p_world: np.ndarray, sigma_m: np.ndarray, rng: np.random.Ge
     inliers : ndarray of shape (N,), bool
     """
     p = check_points(p_world, 3, "p_world")
-    sigma = np.asarray(sigma_m, np.float64)
     n = len(p)
     none = (None, np.zeros(n, bool))
     if n < MIN_PLANE_POINTS:
         return none
-    samples = np.stack([rng.choice(n, 3, replace=False) for _ in range(trials)])
+    if cov_m is not None:
+        cov = np.asarray(cov_m, np.float64)
+        largest = np.sqrt(np.maximum(np.linalg.eigvalsh(cov)[:, -1], 0.0))
+        pool = np.flatnonzero(largest <= np.median(largest))
+        if pool.size < 3:
+            pool = np.arange(n)
+
+        def sigma_along(normal):
+            return np.sqrt(np.maximum(np.einsum("i,nij,j->n", normal, cov, normal), 0.0))
+    else:
+        sigma = np.asarray(sigma_m, np.float64)
+        pool = np.arange(n)
+
+        def sigma_along(normal):
+            return sigma
+    samples = np.stack([rng.choice(pool, 3, replace=False) for _ in range(trials)])
     a, b, c = p[samples[:, 0]], p[samples[:, 1]], p[samples[:, 2]]
     normals = np.cross(b - a, c - a)
     norm = np.linalg.norm(normals, axis=1)
@@ -140,20 +173,95 @@ def fit_plane_robust(p_world: np.ndarray, sigma_m: np.ndarray, rng: np.random.Ge
     offsets = np.einsum("ij,ij->i", normals, a[valid])
     if len(normals) == 0:
         return none
-    inlier_counts = (np.abs(p @ normals.T - offsets) <= inlier_sigmas * sigma[:, None]).sum(axis=0)
+    if cov_m is not None:
+        s_all = np.sqrt(np.maximum(np.einsum("ti,nij,tj->nt", normals, cov, normals), 0.0))
+    else:
+        s_all = sigma[:, None]
+    inlier_counts = (np.abs(p @ normals.T - offsets) <= inlier_sigmas * s_all).sum(axis=0)
     best = int(np.argmax(inlier_counts))
-    inliers = np.abs(p @ normals[best] - offsets[best]) <= inlier_sigmas * sigma
+    s = sigma_along(normals[best])
+    inliers = np.abs(p @ normals[best] - offsets[best]) <= inlier_sigmas * s
     plane = None
-    for _ in range(2):
+    for _ in range(3 if cov_m is not None else 2):
         if inliers.sum() < MIN_PLANE_POINTS:
             return none
+        w = 1.0 / np.maximum(s[inliers], 1e-12) ** 2
         try:
-            plane = fit_plane(p[inliers], 1.0 / sigma[inliers] ** 2)
+            plane = fit_plane(p[inliers], w)
         except EstimationError:
             return none
-        gate = inlier_sigmas * np.sqrt(sigma**2 + plane.offset_sigma(p) ** 2)
+        if cov_m is not None:
+            plane = _without_noise_spread(plane, w, cov[inliers])
+        s = sigma_along(plane.normal)
+        gate = inlier_sigmas * np.sqrt(s**2 + plane.offset_sigma(p) ** 2)
         inliers = np.abs(plane.distance(p)) <= gate
     return plane, inliers
+
+
+def _without_noise_spread(plane: LightPlane, w: np.ndarray, cov: np.ndarray) -> LightPlane:
+    """The plane with the points' own noise removed from its in-plane spread (errors in variables).
+
+    The tilt of a fitted plane about an in-plane axis is known from how far the points extend
+    across that axis. When they extend no farther than their own noise (a stripe that is a
+    straight line in space, whose points scatter along their rays), the fit takes the noise for
+    extent and reports a tilt that is not there. Subtracting the expected noise moment
+    ``Σ w aᵀ Σ_k a`` (normalised like ``spread_m2``) leaves the true extent; where nothing is
+    left, the spread becomes tiny and :meth:`LightPlane.offset_sigma` grows without bound away
+    from the line, so the plane is used only where it is known.
+    """
+    w_mean = w / w.sum()
+    noise = len(w) * np.einsum("n,ai,nij,aj->a", w_mean, plane.axes, cov, plane.axes)
+    spread = np.maximum(plane.spread_m2 - noise, 1e-6 * plane.spread_m2)
+    return dataclasses.replace(plane, spread_m2=spread)
+
+
+def with_block_uncertainty(plane: LightPlane, p_world: np.ndarray, weights: np.ndarray,
+                           n_blocks: int = JACKKNIFE_BLOCKS) -> LightPlane:
+    """The plane with its uncertainty widened to what a block jackknife along the stripe shows.
+
+    :meth:`LightPlane.offset_sigma` assumes independent errors: ``N`` points make the offset
+    ``sqrt(N)`` times better known than one. Points of one stripe share smooth errors (the
+    calibration's, which bend a straight stripe), so the inliers are cut into ``n_blocks``
+    contiguous blocks along the plane's long axis, the plane is refitted without each block, and
+    the jackknife variances of its offset (at the centroid) and of its tilts replace the
+    independent-error ones where they are larger. The result is expressed in the same form — an
+    effective number of points and effective spreads — so ``offset_sigma`` keeps its meaning.
+
+    Parameters
+    ----------
+    plane : LightPlane
+        Fitted to ``p_world`` with ``weights``.
+    p_world : ndarray of shape (N, 3)
+        Its inliers, metres.
+    weights : ndarray of shape (N,)
+        Their weights in the fit.
+    n_blocks : int
+        Jackknife blocks (at least 3 points each, else the plane is returned unchanged).
+    """
+    n = len(p_world)
+    if n < 3 * n_blocks or plane.residual_m <= 0:
+        return plane
+    along = (p_world - plane.centroid) @ plane.axes[1]
+    block = np.empty(n, int)
+    block[np.argsort(along, kind="stable")] = np.arange(n) * n_blocks // n
+    offsets, tilts = [], []
+    for k in range(n_blocks):
+        keep = block != k
+        try:
+            sub = fit_plane(p_world[keep], weights[keep])
+        except EstimationError:
+            return plane
+        normal = sub.normal if sub.normal @ plane.normal >= 0 else -sub.normal
+        offsets.append(plane.centroid @ normal - sub.offset * np.sign(sub.normal @ plane.normal))
+        tilts.append(plane.axes @ normal)
+    offsets, tilts = np.array(offsets), np.array(tilts)
+    factor = (n_blocks - 1) / n_blocks
+    var_offset = factor * np.sum((offsets - offsets.mean()) ** 2)
+    var_tilt = factor * np.sum((tilts - tilts.mean(axis=0)) ** 2, axis=0)
+    r2 = plane.residual_m**2
+    n_eff = min(float(plane.n_inliers), r2 / max(var_offset, 1e-300))
+    spread = np.minimum(plane.spread_m2, r2 / np.maximum(var_tilt, 1e-300))
+    return dataclasses.replace(plane, n_inliers=n_eff, spread_m2=spread)
 
 
 def intersect_plane(centers: np.ndarray, dirs: np.ndarray, plane: LightPlane):

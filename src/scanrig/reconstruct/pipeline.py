@@ -62,6 +62,7 @@ def reconstruct_session(
     seed: int = 0,
     comments=(),
     progress=None,
+    max_sigma_m: float | None = None,
 ) -> dict:
     """Reconstruct the points of a session and write ``points.ply``.
 
@@ -91,6 +92,9 @@ def reconstruct_session(
         Extra ``points.ply`` header lines (command line).
     progress : callable, optional
         ``progress(done, total)`` per stripe frame.
+    max_sigma_m : float, optional
+        Stripe mode: leave out points with a larger sigma (default: relative to the session's
+        three-view points, see :func:`~scanrig.reconstruct.stripes.reconstruct_stripes`).
 
     Returns
     -------
@@ -134,7 +138,8 @@ def reconstruct_session(
                                               keep_ambiguous)
     else:
         cloud, summary = reconstruct_stripes(rig, table, frames, np.random.default_rng(seed), sigma_floor_px,
-                                             gate_probability, min_angle_rad, single_view, progress)
+                                             gate_probability, min_angle_rad, single_view, progress,
+                                             max_sigma_m=max_sigma_m)
     out = Path(out_path) if out_path is not None else session.points_path
     stats = " ".join(f"{k}={v}" for k, v in summary.items())
     write_points(out, cloud, comments=(f"rig: {rig_path}", f"seed: {seed}", f"mode: {mode}; {stats}", *comments))
