@@ -133,11 +133,11 @@ def bench_uncertainty(n_frames):
     rig = ring_rig()
     p_true = points_in_cube(rng, n_frames)
     table, _ = spot_traces(rig, p_true, rng, SIGMA_PX)
-    cloud, _, matches = reconstruct_spots(rig, table, frame_order(table), sigma_floor_px=0.0)
+    _, _, matches = reconstruct_spots(rig, table, frame_order(table), sigma_floor_px=0.0)
     ok = matches.info.ok
     e = matches.p_world[ok] - p_true[ok]
     z = np.linalg.solve(np.linalg.cholesky(matches.info.cov[ok]), e[..., None])[..., 0]
-    along = np.linalg.norm(e, axis=1) / cloud.sigma
+    along = np.linalg.norm(e, axis=1) / matches.info.sigma[ok]
     print(f"\n## 2. Uncertainty over a synthetic spot scan ({ok.sum()} points, {SIGMA_PX} px noise)\n")
     print("| statistic | value | acceptance |")
     print("|---|---|---|")
