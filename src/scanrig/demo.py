@@ -357,14 +357,14 @@ class _Run:
 
     def filter(self) -> str:
         from scanrig.io.filter_files import write_filter_files
-        from scanrig.io.ply import read_points
+        from scanrig.io.ply import read_points_with_sigma
         from scanrig.surface import filter_points, mesh_from_result
         from scanrig.surface.filter import MIN_POINTS
 
-        xyz = read_points(self.out / "points.ply")
+        xyz, point_sigma = read_points_with_sigma(self.out / "points.ply")
         if len(xyz) < MIN_POINTS:
             raise _NotAvailable(f"{len(xyz)} points are too few for the surface fit (< {MIN_POINTS})")
-        result = filter_points(xyz, rng=self.rng_filter)
+        result = filter_points(xyz, rng=self.rng_filter, point_sigma=point_sigma)
         vertices, faces = mesh_from_result(result)
         # The same files as `scanrig filter`: one surface.ply vertex per input point, in order.
         write_filter_files(self.out, result, vertices, faces,

@@ -29,7 +29,7 @@ def command(
 
     from scanrig.errors import InputError
     from scanrig.io.filter_files import write_filter_files
-    from scanrig.io.ply import read_points
+    from scanrig.io.ply import read_points_with_sigma
     from scanrig.surface.filter import filter_points
     from scanrig.surface.hampel import check_q
     from scanrig.surface.meshing import mesh_from_result
@@ -38,7 +38,7 @@ def command(
     check_q(q)
     if sigma_floor_mm < 0:
         raise InputError(f"--sigma-floor-mm must be >= 0, got {sigma_floor_mm}")
-    xyz = read_points(points)
+    xyz, point_sigma = read_points_with_sigma(points)
     if len(xyz) == 0:
         raise InputError(f"{points}: the vertex element is empty")
     settings = FitSettings(q=q, architecture=architecture, depth=1 if architecture == "ridge" else 2)
@@ -47,7 +47,7 @@ def command(
         progress.add_task(f"filtering {len(xyz)} points", total=None)
         result = filter_points(xyz, rng=np.random.default_rng(seed), q=q, settings=settings,
                                max_chart_points=max_chart_points, sigma_floor=sigma_floor_mm * 1e-3,
-                               device=device)
+                               device=device, point_sigma=point_sigma)
         mesh_vertices, faces = mesh_from_result(result)
     header = [f"scanrig filter {points.name} --q {q} --seed {seed} --device {device} "
               f"--architecture {architecture} --max-chart-points {max_chart_points}",

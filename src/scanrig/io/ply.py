@@ -74,6 +74,26 @@ def read_points(path: str | Path) -> np.ndarray:
     return np.column_stack([vertices[f].astype(np.float64) for f in XYZ])
 
 
+def read_points_with_sigma(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points and, when the file has a usable ``sigma`` field, each point's predicted sigma.
+
+    Returns
+    -------
+    xyz : ndarray of shape (N, 3)
+        World metres, float64.
+    sigma : ndarray of shape (N,) or None
+        ``sigma`` (metres) of ``points.ply``; None when the field is absent or not finite and
+        positive everywhere (a cloud from another tool), so callers fall back to fitted scales.
+    """
+    vertices, _, _ = read_ply(path)
+    xyz = np.column_stack([vertices[f].astype(np.float64) for f in XYZ])
+    sigma = vertices.get("sigma")
+    if sigma is None:
+        return xyz, None
+    sigma = sigma.astype(np.float64)
+    return xyz, (sigma if np.all(np.isfinite(sigma) & (sigma > 0)) else None)
+
+
 def write_ply(path: str | Path, vertices: dict[str, np.ndarray], faces: np.ndarray | None = None,
               comments=(), binary: bool = True) -> None:
     """Write a PLY file atomically.

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
@@ -13,6 +14,13 @@ from scanrig.surface.hampel import check_q
 from scanrig.surface.robust_fit import ChartFits, FitSettings, fit_charts
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
+#: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
+#: the median chart's noise scale; and each point's own sigma if given) does not move points.
+TRUST_FACTOR = 3.0
+#: Largest angle between a point's normal and the normal of a chart that may move it.
+MAX_NORMAL_ANGLE = np.deg2rad(60.0)
+#: Neighbours of the local planes that tell an isolated gross error from structure a fit smooths.
+LOCAL_NEIGHBOURS = 12
 
 
 @dataclass
@@ -23,7 +31,9 @@ class FilterResult:
     ----------
     denoised : (N, 3) float array
         Each input point projected on the fitted surface along its chart normal, metres;
-        blended over overlapping charts.
+        blended over the overlapping charts allowed to move it (trusted charts whose normal
+        agrees with the point's and whose fit the point lies within, see
+        :func:`_blend_outputs`); a point no such chart covers keeps its measured position.
     inlier : (N,) bool array
         ``score <= r`` (the Hampel rejection point): the point lies inside the good-data band.
     score : (N,) float array
@@ -56,7 +66,8 @@ class FilterResult:
 def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.25,
                   settings: FitSettings | None = None, max_chart_points: int = 4096,
                   sigma_floor: float = 0.0, device: str = "cpu",
-                  train_mask: np.ndarray | None = None) -> FilterResult:
+                  train_mask: np.ndarray | None = None,
+                  point_sigma: np.ndarray | None = None) -> FilterResult:
     """Robustly fit a surface to a point cloud, flag bad points and denoise the good ones.
 
     Parameters
@@ -73,11 +84,19 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     max_chart_points : int
         Largest number of points a chart owns.
     sigma_floor : float
-        Known sensor noise in metres: the noise scale is never taken below it.
+        Known sensor noise in metres: the noise scale is never taken below it, and a chart
+        whose noise scale exceeds ``TRUST_FACTOR`` times it does not move points (default 0:
+        the median chart's noise scale is that reference).
     device : str
         Torch device: ``"cpu"``, ``"cuda"``, or ``"auto"`` (CUDA when present).
     train_mask : (N,) bool array, optional
         Only these points train the networks (the benchmark's oracle); all are evaluated.
+    point_sigma : (N,) float array, optional
+        Each point's own predicted standard deviation, metres (``sigma`` of ``points.ply``): an
+        absolute reference for ``denoised``. A chart moves a point only if its noise scale is
+        at most ``TRUST_FACTOR`` times the point's sigma and the point lies within
+        ``r * point_sigma`` of the fit (unless it is an isolated gross error); without it the
+        reference is relative (the median chart), which a cloud of one chart cannot use.
 
     Returns
     -------
@@ -103,9 +122,16 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         train_mask = np.asarray(train_mask, dtype=bool)
         if train_mask.shape != (len(points),):
             raise ShapeError(f"train_mask must have shape ({len(points)},), got {train_mask.shape}")
+    if point_sigma is not None:
+        point_sigma = np.asarray(point_sigma, dtype=float)
+        if point_sigma.shape != (len(points),):
+            raise ShapeError(f"point_sigma must have shape ({len(points)},), got {point_sigma.shape}")
+        if not np.all(np.isfinite(point_sigma) & (point_sigma > 0)):
+            raise InputError("point_sigma must be finite and positive")
     device = _resolve_device(device)
 
-    charts = split_charts(points, estimate_normals(points), max_points=max_chart_points, q=q)
+    normals = estimate_normals(points)
+    charts = split_charts(points, normals, max_points=max_chart_points, q=q)
     n_max = max(len(c.members) for c in charts)
     n_charts = len(charts)
     uv = np.zeros((n_charts, n_max, 2))
@@ -128,29 +154,107 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
                       train_mask=None if train_mask is None else mask,
                       sigma_floor=sigma_floor / z_scale, device=device)
 
+    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
+                          point_sigma)
+
+
+def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart], fits: ChartFits,
+                   uv_scale: np.ndarray, z_scale: np.ndarray, settings: FitSettings,
+                   sigma_floor: float, point_sigma: np.ndarray | None = None) -> FilterResult:
+    """Blend the per-chart fits into per-point outputs (see :func:`filter_points`).
+
+    ``residual``, ``score`` and ``sigma`` use the partition of unity of every chart a point is a
+    member of. ``denoised`` is guarded so that the filter never makes good data worse: it blends
+    only *trusted* charts (noise scale at most ``TRUST_FACTOR`` times ``sigma_floor`` if given,
+    else times the median noise scale of all charts: a chart that cannot follow its surface,
+    e.g. one that straddles a step, has a noise scale far above the others'),
+    whose normal agrees with the point's normal (within the charts' 60 degrees; projecting a
+    wall point along a floor chart's normal is meaningless), with inverse-variance weights
+    ``(sigma_ref / sigma_c)^2`` so a loose fit never overrides a tight one, and leaves out a
+    chart at a point that is beyond its rejection point ``r sigma_c`` yet consistent with its
+    neighbours (structure the fit smooths away). With ``point_sigma`` the chart must also be
+    within ``TRUST_FACTOR`` of the point's own sigma and the point within ``r`` of its own
+    sigma of the fit. A point that no such chart covers keeps its measured position.
+    """
     n = len(points)
+    r = settings.constants.r
+    sigma_c = fits.b / r * z_scale  # (C,) metres
+    # reference noise: the known sensor noise if given, else the typical chart's
+    sigma_ref = sigma_floor if sigma_floor > 0 else max(float(np.median(sigma_c)), 1e-300)
+    cos_max = np.cos(MAX_NORMAL_ANGLE)
     acc = np.zeros((n, 7))  # weight, denoised xyz, residual, score, sigma
+    acc_d = np.zeros((n, 4))  # guarded weight, denoised xyz
     for c, chart in enumerate(charts):
         m = len(chart.members)
-        w = blend_weights(chart, points[chart.members])
+        own = points[chart.members]
+        w = blend_weights(chart, own)
+        local = chart.to_chart(own)
         height = fits.z_fit[c, :m] * z_scale[c]
-        local = np.column_stack([uv[c, :m] * uv_scale[c], height])
-        sigma = fits.b[c] / settings.constants.r * z_scale[c]
+        projected = chart.from_chart(np.column_stack([local[:, :2], height]))
         values = np.column_stack([
-            chart.from_chart(local),
-            (z[c, :m] - fits.z_fit[c, :m]) * z_scale[c],
-            np.abs(fits.residual_heldout[c, :m]) * z_scale[c] / sigma,
-            np.full(m, sigma),
+            projected,
+            local[:, 2] - height,
+            np.abs(fits.residual_heldout[c, :m]) * z_scale[c] / sigma_c[c],
+            np.full(m, sigma_c[c]),
         ])
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
+        if sigma_c[c] <= TRUST_FACTOR * sigma_ref:
+            agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
+            # a point beyond the rejection point of the fit but consistent with the plane of its
+            # neighbours lies on structure the fit smooths away (an edge, a step): this chart must
+            # not move it; an isolated gross error is still projected
+            limit = np.full(m, r * sigma_c[c])
+            if point_sigma is not None:  # absolute reference: the points' own predicted sigma
+                own_sigma = np.maximum(point_sigma[chart.members], sigma_floor)
+                agree &= sigma_c[c] <= TRUST_FACTOR * own_sigma
+                limit = np.minimum(limit, r * own_sigma)
+            fits_point = ((np.abs(local[:, 2] - height) <= limit)
+                          | (np.abs(_local_residual(local)) > limit))
+            wd = w * agree * fits_point * (sigma_ref / sigma_c[c]) ** 2
+            np.add.at(acc_d, chart.members, np.column_stack([wd, wd[:, None] * projected]))
     weight = acc[:, 0]
     if np.any(weight <= 0):
         raise RuntimeError("internal error: a point is covered by no chart")
     out = acc[:, 1:] / weight[:, None]
+    covered = acc_d[:, 0] > 0
+    denoised = points.copy()
+    denoised[covered] = acc_d[covered, 1:] / acc_d[covered, :1]
     score = out[:, 4]
-    return FilterResult(denoised=out[:, :3], inlier=score <= settings.constants.r, score=score,
+    return FilterResult(denoised=denoised, inlier=score <= r, score=score,
                         residual=out[:, 3], sigma=out[:, 5], charts=charts, fits=fits,
                         uv_scale=uv_scale, z_scale=z_scale, settings=settings)
+
+
+def _local_residual(local: np.ndarray, k: int = LOCAL_NEIGHBOURS) -> np.ndarray:
+    """Held-out residual of each point's height from a plane through its nearest neighbours.
+
+    Parameters
+    ----------
+    local : (m, 3) float array
+        ``(u, v, height)`` of a chart's members, metres.
+    k : int
+        Neighbours (excluding the point itself), clipped to ``m - 1``.
+
+    Returns
+    -------
+    (m,) float array
+        Height minus the least-squares (minimum-norm) plane ``h = a + b u + c v`` of the
+        neighbours at the point, metres. Independent of the network: large for an isolated
+        gross error, small for a point on an edge or step that its neighbours share. (Not a
+        noise estimate on stripe data: neighbours on one stripe share its offset.)
+    """
+    m = len(local)
+    k = min(k, m - 1)
+    if k < 1:
+        return np.zeros(m)
+    _, idx = cKDTree(local).query(local, k=k + 1)
+    nb = local[idx[:, 1:]]  # (m, k, 3)
+    centre = nb.mean(axis=1)
+    d = nb - centre[:, None]
+    design = d[..., :2]
+    coef = np.einsum("mij,mjk->mik", np.linalg.pinv(design, rcond=1e-6), d[..., 2:])[..., 0]  # (m, 2)
+    predicted = centre[:, 2] + np.einsum("mi,mi->m", local[:, :2] - centre[:, :2], coef)
+    return local[:, 2] - predicted
 
 
 def _resolve_device(device: str) -> str:
