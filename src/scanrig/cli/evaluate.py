@@ -48,6 +48,13 @@ def command(
     typer.echo(
         f"{stats['n_points']} points: RMS {stats['rms_m'] * 1e3:.4f} mm, mean {stats['mean_m'] * 1e3:.4f} mm, "
         f"p95 {stats['p95_m'] * 1e3:.4f} mm, p99 {stats['p99_m'] * 1e3:.4f} mm, max {stats['max_m'] * 1e3:.4f} mm, "
-        f"{100 * stats['fraction_beyond']:.3f} % beyond {outlier_mm:g} mm; median predicted sigma "
-        f"{np.nanmedian(cloud.sigma) * 1e3:.4f} mm -> {histogram}"
+        f"{100 * stats['fraction_beyond']:.3f} % beyond {outlier_mm:g} mm; {_sigma_text(cloud.sigma)} -> {histogram}"
     )
+
+
+def _sigma_text(sigma_m: np.ndarray) -> str:
+    """The cloud's median predicted sigma, or why there is none (surface.ply carries no sigma)."""
+    import numpy as np
+
+    finite = sigma_m[np.isfinite(sigma_m)]
+    return f"median predicted sigma {np.median(finite) * 1e3:.4f} mm" if len(finite) else "no predicted sigma in the file"

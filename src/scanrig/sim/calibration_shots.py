@@ -147,6 +147,12 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
     save_target(target, out / "target.toml")
     sensor = calibration_sensor(room)
     poses = [random_pose(target, rig, room.center_m, room.radius_m, rng) for _ in range(n_shots)]
+    if _n_cameras_seeing(target, RigidTransform.identity(), rig) >= 2:
+        # Shot 000 at the world origin: a calibration takes the target's frame at its first shot
+        # as the world frame, so the calibrated rig then lives in the scene's own frame (as a
+        # user defines the world by where the cube first stands) and its clouds, relocations
+        # and evaluations need no alignment.
+        poses[0] = RigidTransform.identity()
     shot_rngs = rng.spawn(n_shots)
     stems = [f"{i:03d}" for i in range(n_shots)]
     tables = [PixelRayTable(cam) for cam in rig.cameras]
