@@ -153,7 +153,7 @@ def test_constructor_errors():
         cube(edge_m=0.2, squares=7, square_m=0.03)
     with pytest.raises(InputError, match=r"DICT_4X4_50 has 50 markers"):
         charuco((12, 12), 0.02, 0.015, dictionary="DICT_4X4_50")
-    with pytest.raises(InputError, match=r"square_m must be a positive length in metres, got 1000000000"):
+    with pytest.raises(InputError, match=r"square_m must be a positive length in metres below 1000, got 1000000000"):
         cube(square_m=10 ** 400)                     # TOML integers are unbounded; no OverflowError
     with pytest.raises(InputError, match=r"faces must be distinct names among .*, got \[\[1\]\]"):
         cube(faces=[[1]])                            # an unhashable face: no TypeError

@@ -327,6 +327,10 @@ def _check_grid(value, name: str, minimum: int) -> None:
         raise InputError(f"{name} must be two integers >= {minimum} (columns, rows), got {value!r}")
 
 
+#: No printed target is a kilometre across; larger values are typing errors (and overflow later).
+MAX_LENGTH_M = 1000.0
+
+
 def _finite(value) -> bool:
     """Whether a number is finite as a float (a TOML integer beyond float range is not)."""
     try:
@@ -336,9 +340,10 @@ def _finite(value) -> bool:
 
 
 def check_length(value, name: str, allow_zero: bool = False) -> None:
-    """Raise :class:`InputError` naming ``name`` unless ``value`` is a finite positive (or zero) number."""
+    """Raise :class:`InputError` naming ``name`` unless ``value`` is a positive (or zero) length
+    in metres below :data:`MAX_LENGTH_M`."""
     ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool) \
-        and _finite(value) and (value >= 0 if allow_zero else value > 0)
+        and _finite(value) and (value >= 0 if allow_zero else value > 0) and value < MAX_LENGTH_M
     if not ok:
         kind = "non-negative" if allow_zero else "positive"
-        raise InputError(f"{name} must be a {kind} length in metres, got {value!r}")
+        raise InputError(f"{name} must be a {kind} length in metres below {MAX_LENGTH_M:g}, got {value!r}")
