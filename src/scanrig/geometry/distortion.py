@@ -102,29 +102,12 @@ def distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
     ndarray of shape (N, 2)
         Distorted normalised coordinates.
     """
-    x, y = xy[:, 0], xy[:, 1]
-    p1, p2 = d[2], d[3]
-    s1, s2, s3, s4 = d[8:12]
-    r2 = x * x + y * y
-    k4, k5, k6 = d[5:8]
-    radial = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
-    if k4 or k5 or k6:
-        radial /= 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    xy2 = 2.0 * x * y
-    out = np.empty_like(xy)
-    out[:, 0] = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-    out[:, 1] = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
-    if s1 or s2 or s3 or s4:
-        out[:, 0] += r2 * (s1 + s2 * r2)
-        out[:, 1] += r2 * (s3 + s4 * r2)
-    return out
+    xd, yd = distort_components(xy[:, 0], xy[:, 1], d)
+    return np.stack([xd, yd], axis=-1)
 
 
 def distort_components(x: np.ndarray, y: np.ndarray, d: np.ndarray):
-    """:func:`distort` on separate coordinate arrays: returns ``(xd, yd)``, same shape as ``x``.
-
-    The same arithmetic as :func:`distort`, which writes straight into its ``(N, 2)`` result.
-    """
+    """:func:`distort` on separate coordinate arrays: returns ``(xd, yd)``, same shape as ``x``."""
     p1, p2 = d[2], d[3]
     s1, s2, s3, s4 = d[8:12]
     r2 = x * x + y * y
