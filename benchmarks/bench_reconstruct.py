@@ -48,6 +48,7 @@ from tests.reconstruct.synth import (  # noqa: E402
     height_field,
     observe,
     points_in_cube,
+    reflection_outcome,
     ring_rig,
     spot_traces,
     stripe_traces,
@@ -167,12 +168,7 @@ def reflection_figures(azimuths, n_frames, seed=3):
     table, truth = spot_traces(rig, p_true, rng, SIGMA_PX, reflection_rate=0.3, occlusion_rate=0.1)
     frames = [f"f{k:04d}" for k in range(n_frames)]  # frame index k <-> p_true[k]
     cloud, summary, matches = reconstruct_spots(rig, table, frames)
-    n_refl = rejected = 0
-    for (cam, frame), is_refl in truth.items():
-        i, f = rig.names.index(cam), frames.index(frame)
-        for k in np.flatnonzero(is_refl):
-            n_refl += 1
-            rejected += matches.status[f] != FrameStatus.MATCHED or matches.choice[f, i] != k
+    n_refl, rejected = reflection_outcome(rig, frames, truth, matches)
     err = np.linalg.norm(cloud.p_world - p_true[cloud.frame], axis=1)
     return dict(with_reflection=len({f for (_, f), r in truth.items() if r.any()}) / n_frames,
                 rejected=rejected / n_refl, matched=summary["frames_matched"],

@@ -102,6 +102,34 @@ def spot_traces(rig: Rig, p_world: np.ndarray, rng: np.random.Generator, sigma_p
     return pa.Table.from_pydict({f.name: cols[f.name] for f in SCHEMA}, schema=SCHEMA), truth
 
 
+def reflection_outcome(rig: Rig, frames: list[str], truth: dict, matches) -> tuple[int, int]:
+    """Reflection candidates of :func:`spot_traces` and how many the matching left out.
+
+    Parameters
+    ----------
+    rig : Rig
+    frames : list of str
+        Frame order of ``matches``.
+    truth : dict
+        ``(camera, frame) -> (n_candidates,) bool`` reflection flags from :func:`spot_traces`.
+    matches : SpotMatches
+        The matching result (``status`` per frame, ``choice`` per frame and camera).
+
+    Returns
+    -------
+    n_reflections, n_rejected : int
+    """
+    from scanrig.reconstruct.correspondence import FrameStatus
+
+    n_refl = rejected = 0
+    for (cam, frame), is_refl in truth.items():
+        i, f = rig.names.index(cam), frames.index(frame)
+        for k in np.flatnonzero(is_refl):
+            n_refl += 1
+            rejected += matches.status[f] != FrameStatus.MATCHED or matches.choice[f, i] != k
+    return n_refl, rejected
+
+
 def two_camera_table(uv_by_camera, sigma_px=0.3):
     """Spot traces of frame ``f0`` from ``camera -> (n, 2)`` pixels, ranked in order."""
     import pyarrow as pa

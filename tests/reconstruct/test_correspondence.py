@@ -9,7 +9,7 @@ from scanrig.reconstruct.candidates import frame_order, spot_candidates
 from scanrig.reconstruct.correspondence import FrameStatus, hypotheses, match_spots
 from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.spots import reconstruct_spots
-from tests.reconstruct.synth import points_in_cube, ring_rig, spot_traces, two_camera_table
+from tests.reconstruct.synth import points_in_cube, reflection_outcome, ring_rig, spot_traces, two_camera_table
 
 #: Detection noise of the synthetic traces (the brief's 0.3 px).
 SIGMA_PX = 0.3
@@ -21,16 +21,6 @@ MAX_FRACTION_BEYOND_1MM = 0.005
 OUTLIER_M = 1e-3
 
 
-def _reflection_outcome(rig, frames, truth, matches):
-    n_refl = rejected = 0
-    for (cam, frame), is_refl in truth.items():
-        i, f = rig.names.index(cam), frames.index(frame)
-        for k in np.flatnonzero(is_refl):
-            n_refl += 1
-            rejected += matches.status[f] != FrameStatus.MATCHED or matches.choice[f, i] != k
-    return n_refl, rejected
-
-
 def test_reflections_are_rejected_with_four_cameras():
     rng = np.random.default_rng(31)
     rig = ring_rig((-60.0, -20.0, 20.0, 60.0))
@@ -38,7 +28,7 @@ def test_reflections_are_rejected_with_four_cameras():
     table, truth = spot_traces(rig, p_true, rng, SIGMA_PX, reflection_rate=0.3, occlusion_rate=0.1)
     frames = frame_order(table)
     cloud, summary, matches = reconstruct_spots(rig, table, frames)
-    n_refl, rejected = _reflection_outcome(rig, frames, truth, matches)
+    n_refl, rejected = reflection_outcome(rig, frames, truth, matches)
     frames_with_reflection = len({f for (_, f), r in truth.items() if r.any()}) / len(frames)
     assert frames_with_reflection >= 0.2
     assert rejected / n_refl >= MIN_REJECTED_REFLECTIONS

@@ -70,8 +70,7 @@ def read_ply(path: str | Path) -> tuple[dict[str, np.ndarray], np.ndarray | None
 
 def read_points(path: str | Path) -> np.ndarray:
     """The ``(N, 3)`` float64 ``x, y, z`` of a PLY file's vertices (see :func:`read_ply`)."""
-    vertices, _, _ = read_ply(path)
-    return np.column_stack([vertices[f].astype(np.float64) for f in XYZ])
+    return read_points_with_sigma(path)[0]
 
 
 def read_points_with_sigma(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
