@@ -9,9 +9,11 @@ import pyarrow as pa
 import pytest
 
 from scanrig.geometry import Rig
-from scanrig.reconstruct import stripes
 from scanrig.reconstruct.candidates import frame_order
 from scanrig.reconstruct.stripes import reconstruct_stripes
+from scanrig.reconstruct.stripes.accept import greedy_unique
+from scanrig.reconstruct.stripes.floor import estimate_calibration_floor, floor_samples
+from scanrig.reconstruct.stripes.views import frame_views
 from tests.reconstruct.synth import curve_traces, height_field, plane_curve, ring_rig
 
 #: Detection noise across the stripe (px), as in test_stripes.
@@ -107,10 +109,10 @@ def test_calibration_floor_is_raised_only_where_the_calibration_is_wrong(rig):
 
     def floor(r):
         frames = np.array(table.column("frame").to_pylist())
-        views = [stripes._frame_views(r, table.filter(pa.array(frames == f)), np.eye(2) * 0.01)
+        views = [frame_views(r, table.filter(pa.array(frames == f)), np.eye(2) * 0.01)
                  for f in sorted(set(frames))]
-        samples = [x for v in views for x in stripes._floor_samples(r, v)]
-        return stripes.estimate_calibration_floor(samples, len(r))
+        samples = [x for v in views for x in floor_samples(r, v)]
+        return estimate_calibration_floor(samples, len(r))
 
     edges, s2_true = floor(rig)
     assert np.sqrt(s2_true.max()) < 0.5 * SIGMA_PX  # nothing beyond the detection noise
@@ -130,7 +132,7 @@ def test_each_detection_supports_at_most_one_point():
     rng = np.random.default_rng(74)
     det_ids = rng.integers(-1, 40, size=(300, 3))
     priority = rng.permutation(300)
-    accepted = stripes._greedy_unique(det_ids, priority)
+    accepted = greedy_unique(det_ids, priority)
     taken, expected = set(), np.zeros(300, bool)
     for row in np.argsort(priority):
         ids = {int(d) for d in det_ids[row] if d >= 0}

@@ -1,0 +1,118 @@
+"""``reconstruct_stripes``: the points of every stripe frame of a session's traces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from scanrig.errors import InputError
+from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD
+from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
+from scanrig.reconstruct.points import PointCloud
+from scanrig.reconstruct.stripes.epipolar import frame_branches
+from scanrig.reconstruct.stripes.floor import estimate_calibration_floor, floor_samples, inflate_views
+from scanrig.reconstruct.stripes.frame import reconstruct_stripe_frame
+from scanrig.reconstruct.stripes.precision import default_max_sigma
+from scanrig.reconstruct.stripes.views import frame_views
+
+
+def reconstruct_stripes(
+    rig,
+    table: pa.Table,
+    frames: list[str],
+    rng: np.random.Generator,
+    sigma_floor_px: float = SIGMA_FLOOR_PX,
+    gate_probability: float = GATE_PROBABILITY,
+    min_angle_rad: float = MIN_TRIANGULATION_ANGLE_RAD,
+    single_view: bool = True,
+    progress=None,
+    estimate_floor: bool = True,
+    max_sigma_m: float | None = None,
+):
+    """Points of every stripe frame of a traces table.
+
+    Parameters
+    ----------
+    rig : Rig
+        At least two calibrated cameras.
+    table : pyarrow.Table
+        Traces; ``kind == "stripe"`` rows are used.
+    frames : list of str
+        Frame stems in natural order (defines the ``frame`` index).
+    rng : numpy.random.Generator
+        For the robust plane fits.
+    sigma_floor_px, gate_probability, min_angle_rad
+        As in spot mode.
+    single_view : bool
+        Add the points seen by one camera only, intersected with the frame's plane.
+    progress : callable, optional
+        ``progress(done, total)`` after each frame.
+    estimate_floor : bool
+        Raise the calibration floor per camera and image radius where the three-view points show
+        the calibration to be worse than ``sigma_floor_px`` (:func:`estimate_calibration_floor`).
+    max_sigma_m : float, optional
+        Points with a larger sigma are left out; default
+        :func:`~scanrig.reconstruct.stripes.precision.default_max_sigma` (``numpy.inf`` keeps every
+        point that passed its tests).
+
+    Returns
+    -------
+    cloud : PointCloud
+    summary : dict
+        Frames, frames with a plane, multi-view and single-view points, two-view pairs (branches
+        of epipolar crossings) and those rejected (off the plane, no plane to test them, located
+        by the plane only, contradicted by a third camera), points left out as imprecise and the
+        sigma limit (``max_sigma_mm``), and the largest estimated extra calibration noise
+        (``floor_extra_px``).
+    """
+    if len(rig) < 2:
+        raise InputError(f"multi-view reconstruction needs at least 2 cameras, the rig has {len(rig)}")
+    stripes = table.filter(pc.equal(table.column("kind"), "stripe"))
+    unknown = sorted(set(stripes.column("camera").unique().to_pylist()) - set(rig.names))
+    if unknown:
+        raise InputError(f"traces name cameras {unknown} that are not in the rig (cameras: {rig.names})")
+    floor = np.eye(2) * sigma_floor_px**2
+    frame_idx = pc.index_in(stripes.column("frame"), value_set=pa.array(frames, pa.string())).to_numpy(
+        zero_copy_only=False)
+    order = np.argsort(frame_idx, kind="stable")
+    bounds = np.searchsorted(frame_idx[order], np.arange(len(frames) + 1))
+    views_of, branches_of = {}, {}
+    for f in range(len(frames)):
+        rows = order[bounds[f]:bounds[f + 1]]
+        if rows.size:
+            views_of[f] = frame_views(rig, stripes.take(pa.array(rows)), floor)
+            branches_of[f] = frame_branches(rig, views_of[f])  # geometry only: kept across the floor
+    extra_px = 0.0
+    if estimate_floor:
+        samples = [x for f, views in views_of.items() for x in floor_samples(rig, views, branches_of[f])]
+        edges, s2 = estimate_calibration_floor(samples, len(rig), gate_probability)
+        extra_px = float(np.sqrt(s2.max()))
+        if s2.any():
+            for views in views_of.values():
+                inflate_views(rig, views, edges, s2)
+    totals = dict(multi_view=0, single_view=0, off_plane_pairs=0, pairs=0, plane=0)
+    clouds = []
+    for f in range(len(frames)):
+        if f in views_of:
+            cloud, counts = reconstruct_stripe_frame(rig, views_of[f], f, rng, gate_probability, min_angle_rad,
+                                                     single_view, branches_of[f])
+            clouds.append(cloud)
+            for k, v in counts.items():
+                totals[k] += v
+        if progress is not None:
+            progress(f + 1, len(frames))
+    cloud = PointCloud.concatenate(clouds)
+    if max_sigma_m is None:
+        max_sigma_m = default_max_sigma(cloud)
+    precise = cloud.sigma <= max_sigma_m
+    imprecise = int((~precise).sum())
+    totals["multi_view"] -= int((~precise & (cloud.n_views >= 2)).sum())
+    totals["single_view"] -= int((~precise & (cloud.n_views == 1)).sum())
+    cloud = cloud.select(precise)
+    summary = dict(frames=len(frames), points=len(cloud), frames_with_plane=totals["plane"],
+                   points_multi_view=totals["multi_view"], points_single_view=totals["single_view"],
+                   points_imprecise=imprecise, max_sigma_mm=round(1e3 * max_sigma_m, 4),
+                   pairs=totals["pairs"], pairs_off_plane=totals["off_plane_pairs"],
+                   floor_extra_px=round(extra_px, 3))
+    return cloud, summary
