@@ -5,6 +5,12 @@ Cameras on a ring look at the origin; the target is posed near the origin
 fields of view and depth range (:func:`covering_target_poses`); every target point that is in
 front of a camera, inside its image and seen from the printed side at less than
 :data:`MAX_VIEW_ANGLE_DEG` from the board normal is observed with Gaussian pixel noise.
+Optionally (``min_square_px``) a point is observed only where its board's squares image at
+least that many pixels across along their foreshortened direction, as real detectors need:
+a ChArUco face of 25 mm squares rendered at 1.25 m (28 px squares; blur 0.8 px, noise 2 DN)
+gives 169 of 169 corners face-on, 127 at 45 deg (20 px foreshortened), 28 at 60 deg (14 px)
+and none at 70 deg (10 px); at 0.9 m, 138 at 60 deg (19 px) and 61 at 70 deg (13 px); at
+0.6 m, 130 at 70 deg (20 px).
 """
 
 from __future__ import annotations
@@ -20,6 +26,9 @@ from scanrig.targets import Target
 
 #: Steepest view of a board (angle between the line of sight and the board normal) still detected.
 MAX_VIEW_ANGLE_DEG = 70.0
+#: Foreshortened square size (px) at which about half of a ChArUco face's corners are still
+#: found in the renders quoted in the module docstring (14 px: 17-36 %, 19-20 px: 75-82 %).
+DETECTABLE_SQUARE_PX = 16.0
 
 
 @dataclass
@@ -87,7 +96,8 @@ def random_target_poses(n_shots: int, rng: np.random.Generator, max_tilt_deg: fl
 
 def covering_target_poses(cameras: list[Camera], target: Target, n_shots: int, rng: np.random.Generator,
                           image_margin: float = 0.1, depth_m: float = 0.25, min_cameras: int = 2,
-                          min_points: int = 12, max_tries: int = 200) -> list[RigidTransform]:
+                          min_points: int = 12, max_tries: int = 200,
+                          min_square_px: float | None = None) -> list[RigidTransform]:
     """Target poses spread over the cameras' fields of view, as a calibrating user takes them.
 
     Shot 0 is the identity (the world frame). For every other shot, the cameras take turns: a
@@ -98,7 +108,7 @@ def covering_target_poses(cameras: list[Camera], target: Target, n_shots: int, r
     shots drawn near a border see it cut by the image edge, so every camera sees target points
     up to its image corners. A pose is kept when at least ``min_cameras`` cameras each see at
     least ``min_points`` points (with the visibility rules of :func:`observe`); otherwise it is
-    drawn again (at most ``max_tries`` times per shot).
+    drawn again (at most ``max_tries`` times per shot). ``min_square_px`` as in :func:`observe`.
 
     Raises
     ------
@@ -123,7 +133,8 @@ def covering_target_poses(cameras: list[Camera], target: Target, n_shots: int, r
             centre_world = cam.cam_from_world.inverse().apply((np.append(xy[0], 1.0) * depth)[None, :])[0]
             R = Rotation.random(random_state=rng).as_matrix()
             pose = RigidTransform(R, centre_world - R @ centre_target)
-            if sum(np.count_nonzero(_visible(c, target, pose)) >= min_points for c in cameras) >= min_cameras:
+            if sum(np.count_nonzero(_visible(c, target, pose, min_square_px)) >= min_points
+                   for c in cameras) >= min_cameras:
                 poses.append(pose)
                 break
         else:
@@ -131,12 +142,17 @@ def covering_target_poses(cameras: list[Camera], target: Target, n_shots: int, r
     return poses
 
 
-def _visible(cam: Camera, target: Target, pose: RigidTransform) -> np.ndarray:
+def _visible(cam: Camera, target: Target, pose: RigidTransform, min_square_px: float | None = None) -> np.ndarray:
     """Which target points ``cam`` sees with the target at ``pose`` (world_from_target)."""
-    return _project_visible(cam, target, pose)[0]
+    return _project_visible(cam, target, pose, min_square_px)[0]
 
 
-def _project_visible(cam: Camera, target: Target, pose: RigidTransform):
+def _board_pitch_m(board) -> float:
+    """Square side (chessboard, ChArUco) or circle spacing of a board, metres."""
+    return float(getattr(board, "square_m", None) or board.spacing_m)
+
+
+def _project_visible(cam: Camera, target: Target, pose: RigidTransform, min_square_px: float | None = None):
     """Visibility mask (see the module docstring) and pixels of every target point in ``cam``."""
     normals_target = np.concatenate([np.tile(b.target_from_board.R[:, 2], (len(b.point_ids), 1))
                                      for b in target.boards])
@@ -146,20 +162,31 @@ def _project_visible(cam: Camera, target: Target, pose: RigidTransform):
     q = cam.project(p_world)
     sight = p_world - cam.center_world
     sight /= np.linalg.norm(sight, axis=1, keepdims=True)
-    facing = np.sum(sight * inward_world, axis=1) > cos_max
+    cos_view = np.sum(sight * inward_world, axis=1)
+    facing = cos_view > cos_max
+    if min_square_px is not None:
+        # Foreshortened size of the point's squares: pitch * f / range * cos(view angle).
+        pitch = np.concatenate([np.full(len(b.point_ids), _board_pitch_m(b)) for b in target.boards])
+        ranges = np.linalg.norm(p_world - cam.center_world, axis=1)
+        facing &= pitch * min(cam.params[0], cam.params[1]) / ranges * cos_view >= min_square_px
     inside = np.all(np.isfinite(q), axis=1) & (q[:, 0] > 0) & (q[:, 1] > 0) \
         & (q[:, 0] < cam.width - 1) & (q[:, 1] < cam.height - 1)
     return facing & inside, q
 
 
 def observe(cameras: list[Camera], target: Target, world_from_target: list[RigidTransform],
-            sigma_px: float, rng: np.random.Generator) -> Observations:
-    """Noisy observations of every visible target point (see the module docstring)."""
+            sigma_px: float, rng: np.random.Generator, min_square_px: float | None = None) -> Observations:
+    """Noisy observations of every visible target point (see the module docstring).
+
+    ``min_square_px``: observe a point only where its board's squares (circle spacing) image at
+    least this many pixels along their foreshortened direction (None: no size limit);
+    :data:`DETECTABLE_SQUARE_PX` matches the rendered ChArUco detections.
+    """
     parts = []
     shot_names = [f"{s:03d}" for s in range(len(world_from_target))]
     for s, pose in enumerate(world_from_target):
         for cam in cameras:
-            keep, q = _project_visible(cam, target, pose)
+            keep, q = _project_visible(cam, target, pose, min_square_px)
             if np.count_nonzero(keep) == 0:
                 continue
             noisy = q[keep] + rng.normal(scale=sigma_px, size=(np.count_nonzero(keep), 2))
@@ -169,18 +196,21 @@ def observe(cameras: list[Camera], target: Target, world_from_target: list[Rigid
 
 
 def simulate(cameras: list[Camera], target: Target, n_shots: int, sigma_px: float,
-             rng: np.random.Generator, cover: bool = False, **pose_options) -> SyntheticCalibration:
+             rng: np.random.Generator, cover: bool = False, min_square_px: float | None = None,
+             **pose_options) -> SyntheticCalibration:
     """Random target poses (shot 0 = world) and noisy observations of them.
 
     ``cover=False``: poses near the origin (:func:`random_target_poses`); ``cover=True``: poses
-    spread over the cameras' fields of view and depth (:func:`covering_target_poses`).
-    ``pose_options`` go to the chosen function.
+    spread over the cameras' fields of view and depth (:func:`covering_target_poses`, which
+    then also gets ``min_square_px``). ``pose_options`` go to the chosen function;
+    ``min_square_px`` to :func:`observe`.
     """
     if cover:
-        poses = covering_target_poses(cameras, target, n_shots, rng, **pose_options)
+        poses = covering_target_poses(cameras, target, n_shots, rng, min_square_px=min_square_px, **pose_options)
     else:
         poses = random_target_poses(n_shots, rng, **pose_options)
-    return SyntheticCalibration(cameras, poses, observe(cameras, target, poses, sigma_px, rng), sigma_px)
+    obs = observe(cameras, target, poses, sigma_px, rng, min_square_px)
+    return SyntheticCalibration(cameras, poses, obs, sigma_px)
 
 
 #: Sub-samples per axis with which :func:`render_board` re-renders pixels cut by an edge.
