@@ -199,7 +199,9 @@ def bench_stripes(n_frames):
     for label, kwargs in (("clean", {}), ("reflection in cam1 (rank 1, 15 px)", {"reflection_camera": 1}),
                           ("y > 0.08 m seen by cam0 only", {"hidden_y_m": 0.08})):
         table = stripe_traces(rig, offsets, np.random.default_rng(4), 0.2, **kwargs)
-        cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0))
+        # this rig's points have a sigma of 0.1-0.2 mm: its accuracy target is 0.2 mm, not the default 0.1
+        cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0),
+                                             max_sigma_m=2e-4)
         dz = cloud.p_world[:, 2] - height_field(cloud.p_world[:, 0], cloud.p_world[:, 1])
         print(f"| {label} | {len(cloud) / n_frames:.0f} | {summary['points_multi_view']} | "
               f"{summary['points_single_view']} | {1e3 * np.sqrt(np.mean(dz**2)):.4f} | "

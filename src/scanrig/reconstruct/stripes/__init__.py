@@ -48,8 +48,10 @@ covariance interpolated from the detections still predicts a tenth of a millimet
    isolated noise peak or a reflection only this camera sees), are intersected with the plane
    (flag ``PLANE_SINGLE_VIEW``) unless their sigma exceeds :data:`~.single_view.SINGLE_VIEW_SIGMA_RATIO` times
    the frame's median multi-view sigma.
-8. **Precision.** Points whose sigma exceeds :data:`~.precision.MAX_SIGMA_RATIO` times the median sigma of
-   the session's three-view points are left out (``max_sigma_m`` overrides).
+8. **Precision.** Points whose sigma exceeds the accuracy target are left out: 0.1 mm
+   (:data:`~.precision.TARGET_SIGMA_M`) unless ``max_sigma_m`` says otherwise. With honest
+   covariances the kept cloud's RMS distance to the surface is then at most the target
+   (:mod:`.precision`).
 
 A stripe that is a straight line in space leaves the plane's tilt about that line undetermined;
 the plane's position uncertainty (lever arm from its inliers' true extent) grows away from the

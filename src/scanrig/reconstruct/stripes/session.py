@@ -13,7 +13,7 @@ from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.epipolar import frame_branches
 from scanrig.reconstruct.stripes.floor import estimate_calibration_floor, floor_samples, inflate_views
 from scanrig.reconstruct.stripes.frame import reconstruct_stripe_frame
-from scanrig.reconstruct.stripes.precision import default_max_sigma
+from scanrig.reconstruct.stripes.precision import TARGET_SIGMA_M, split_by_precision
 from scanrig.reconstruct.stripes.views import frame_views
 
 
@@ -52,9 +52,9 @@ def reconstruct_stripes(
         Raise the calibration floor per camera and image radius where the three-view points show
         the calibration to be worse than ``sigma_floor_px`` (:func:`estimate_calibration_floor`).
     max_sigma_m : float, optional
-        Points with a larger sigma are left out; default
-        :func:`~scanrig.reconstruct.stripes.precision.default_max_sigma` (``numpy.inf`` keeps every
-        point that passed its tests).
+        Points with a larger sigma (metres) are left out; default the 0.1 mm accuracy target
+        (:mod:`scanrig.reconstruct.stripes.precision` says why; ``numpy.inf`` keeps every point
+        that passed its tests).
 
     Returns
     -------
@@ -102,17 +102,13 @@ def reconstruct_stripes(
                 totals[k] += v
         if progress is not None:
             progress(f + 1, len(frames))
-    cloud = PointCloud.concatenate(clouds)
-    if max_sigma_m is None:
-        max_sigma_m = default_max_sigma(cloud)
-    precise = cloud.sigma <= max_sigma_m
-    imprecise = int((~precise).sum())
-    totals["multi_view"] -= int((~precise & (cloud.n_views >= 2)).sum())
-    totals["single_view"] -= int((~precise & (cloud.n_views == 1)).sum())
-    cloud = cloud.select(precise)
+    limit_m = TARGET_SIGMA_M if max_sigma_m is None else max_sigma_m
+    cloud, imprecise = split_by_precision(PointCloud.concatenate(clouds), limit_m)
+    totals["multi_view"] -= int((imprecise.n_views >= 2).sum())
+    totals["single_view"] -= int((imprecise.n_views == 1).sum())
     summary = dict(frames=len(frames), points=len(cloud), frames_with_plane=totals["plane"],
                    points_multi_view=totals["multi_view"], points_single_view=totals["single_view"],
-                   points_imprecise=imprecise, max_sigma_mm=round(1e3 * max_sigma_m, 4),
+                   points_imprecise=len(imprecise), max_sigma_mm=round(1e3 * limit_m, 4),
                    pairs=totals["pairs"], pairs_off_plane=totals["off_plane_pairs"],
                    floor_extra_px=round(extra_px, 3))
     return cloud, summary
