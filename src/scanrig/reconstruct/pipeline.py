@@ -19,6 +19,7 @@ from scanrig.reconstruct.light_plane import intersect_stripe_pixels, load_light_
 from scanrig.reconstruct.points import PointCloud, write_points
 from scanrig.reconstruct.spots import reconstruct_spots
 from scanrig.reconstruct.stripes import reconstruct_stripes
+from scanrig.reconstruct.stripes.precision import split_by_precision
 
 
 def check_rig_against_session(rig, session: Session, rig_path: Path) -> None:
@@ -93,8 +94,9 @@ def reconstruct_session(
     progress : callable, optional
         ``progress(done, total)`` per stripe frame.
     max_sigma_m : float, optional
-        Stripe mode: leave out points with a larger sigma (default: relative to the session's
-        three-view points, see :func:`~scanrig.reconstruct.stripes.reconstruct_stripes`).
+        Leave out points with a larger predicted sigma, metres (every mode). Default: the 0.1 mm
+        accuracy target in multi-view stripe mode (:mod:`scanrig.reconstruct.stripes.precision`),
+        no cut in spot and classic single-camera modes.
 
     Returns
     -------
@@ -140,6 +142,10 @@ def reconstruct_session(
         cloud, summary = reconstruct_stripes(rig, table, frames, np.random.default_rng(seed), sigma_floor_px,
                                              gate_probability, min_angle_rad, single_view, progress,
                                              max_sigma_m=max_sigma_m)
+    if max_sigma_m is not None and mode != "stripe":  # multi-view stripe mode made its own cut
+        cloud, imprecise = split_by_precision(cloud, max_sigma_m)
+        summary.update(points=len(cloud), points_imprecise=len(imprecise),
+                       max_sigma_mm=round(1e3 * max_sigma_m, 4))
     out = Path(out_path) if out_path is not None else session.points_path
     stats = " ".join(f"{k}={v}" for k, v in summary.items())
     write_points(out, cloud, comments=(f"rig: {rig_path}", f"seed: {seed}", f"mode: {mode}; {stats}", *comments))

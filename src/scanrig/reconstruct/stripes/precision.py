@@ -1,4 +1,4 @@
-"""The precision cut of stripe mode: points whose predicted sigma exceeds the accuracy target.
+"""The precision cut: points whose predicted sigma exceeds the accuracy target (stripe default).
 
 The rule follows from the noise model. A point's ``sigma`` is the standard deviation along the
 largest axis of its covariance, so with honest covariances its error along *any* direction — in
