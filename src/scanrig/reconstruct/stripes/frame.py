@@ -10,7 +10,7 @@ from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.accept import contradicted, greedy_unique
 from scanrig.reconstruct.stripes.epipolar import frame_branches, hypotheses
-from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, test_on_plane, three_view_pass
+from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, gate_on_plane, three_view_pass
 from scanrig.reconstruct.stripes.single_view import single_view_points
 from scanrig.reconstruct.stripes.solve import Observations, SolvedHypotheses, min_crossing_angle, solve
 
@@ -55,7 +55,7 @@ def reconstruct_stripe_frame(rig, views, frame_index: int, rng, gate_probability
     plane = fit_frame_plane(hyps, multi, rng)
     cand = []
     for h, s_multi in zip(hyps, multi):
-        passed, p, cov, resid = test_on_plane(cams, h, s_multi, plane, gate_probability, min_angle_rad)
+        passed, p, cov, resid = gate_on_plane(cams, h, s_multi, plane, gate_probability, min_angle_rad)
         m = h.n_other
         counts["off_plane_pairs"] += int(((m == 1) & ~passed).sum())
         cand.append((h.ref, h.choice[passed], p[passed], cov[passed], resid[passed], m[passed]))

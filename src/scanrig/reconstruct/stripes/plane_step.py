@@ -43,7 +43,7 @@ def fit_frame_plane(hyps: list[SolvedHypotheses], multi: list[np.ndarray], rng):
     return plane
 
 
-def test_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_probability: float,
+def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_probability: float,
                   min_angle_rad: float):
     """Which hypotheses pass, with the plane as one more measurement where it measures depth.
 
