@@ -14,6 +14,14 @@ from scanrig.io.session import natural_key
 #: Candidates kept per camera and frame, brightest first (``rank``). Spot frames rarely hold more
 #: than a spot and two reflections; the hypothesis count grows as (K + 1) ** n_cams.
 MAX_CANDIDATES = 4
+#: A candidate is a *fixed feature* (a glint of room light on polished metal, a hot pixel), not
+#: laser light, when its camera has a candidate within ``STATIC_RADIUS_PX`` of it in at least
+#: ``STATIC_MIN_FRAMES`` other frames: the spot moves with the beam, so it does not come back to
+#: the same pixel frame after frame. The radius is ~3 sigma of the faint candidates such features
+#: make (their centre sigma is 0.3-1 px); a re-scan of one surface point from several beams would
+#: recur too, hence more than a couple of frames. 0 disables the test.
+STATIC_RADIUS_PX = 1.5
+STATIC_MIN_FRAMES = 3
 
 
 @dataclass(frozen=True)
@@ -35,6 +43,9 @@ class Candidates:
         Candidates kept per frame and camera.
     n_ignored : int
         Candidates beyond ``K`` per camera and frame (the dimmest), not considered.
+    static : ndarray of shape (n_frames, n_cams, K), bool, optional
+        Fixed features (see ``STATIC_RADIUS_PX``): kept in place, so that indices stay ranks,
+        but never matched. None = none.
     """
 
     frames: list[str]
@@ -44,6 +55,7 @@ class Candidates:
     saturated: np.ndarray
     count: np.ndarray
     n_ignored: int
+    static: np.ndarray | None = None
 
 
 def frame_order(table: pa.Table, metadata: dict | None = None) -> list[str]:
@@ -57,7 +69,8 @@ def frame_order(table: pa.Table, metadata: dict | None = None) -> list[str]:
 
 
 def spot_candidates(table: pa.Table, cameras: list[str], frames: list[str],
-                    max_per_camera: int = MAX_CANDIDATES) -> Candidates:
+                    max_per_camera: int = MAX_CANDIDATES, static_radius_px: float = STATIC_RADIUS_PX,
+                    static_min_frames: int = STATIC_MIN_FRAMES) -> Candidates:
     """Gather the spot rows of a traces table into padded arrays.
 
     Parameters
@@ -70,6 +83,8 @@ def spot_candidates(table: pa.Table, cameras: list[str], frames: list[str],
         Frame stems, in the order that defines frame indices (see :func:`frame_order`).
     max_per_camera : int
         ``K``: candidates kept per camera and frame, by ``rank``.
+    static_radius_px, static_min_frames : float, int
+        Fixed-feature test (see ``STATIC_RADIUS_PX``); ``static_min_frames = 0`` disables it.
 
     Raises
     ------
@@ -109,4 +124,43 @@ def spot_candidates(table: pa.Table, cameras: list[str], frames: list[str],
     saturated[idx] = col("saturated")
     count = np.zeros((n_frames, n_cams), np.int64)
     np.add.at(count, (f[keep], c[keep]), 1)
-    return Candidates(frames, list(cameras), q, cov, saturated, count, int((~keep).sum()))
+    static = np.zeros((n_frames, n_cams, K), bool)
+    if static_min_frames > 0:
+        uv = np.stack([spots.column("u").to_numpy()[order], spots.column("v").to_numpy()[order]], axis=1)
+        static[idx] = fixed_features(uv, c, f, static_radius_px, static_min_frames)[keep]
+    return Candidates(frames, list(cameras), q, cov, saturated, count, int((~keep).sum()), static)
+
+
+def fixed_features(uv: np.ndarray, camera: np.ndarray, frame: np.ndarray, radius_px: float,
+                   min_frames: int) -> np.ndarray:
+    """Which candidates recur at the same pixel of their camera in ``min_frames`` other frames.
+
+    Parameters
+    ----------
+    uv : ndarray of shape (N, 2)
+        Candidate centres, pixels.
+    camera, frame : ndarray of shape (N,), int
+        Camera and frame index of each candidate.
+    radius_px : float
+        Distance within which two candidates are at the same place.
+    min_frames : int
+        Number of other frames (distinct) with a candidate there.
+
+    Returns
+    -------
+    ndarray of shape (N,), bool
+    """
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(len(uv), bool)
+    for cam in np.unique(camera):
+        rows = np.flatnonzero(camera == cam)
+        pairs = cKDTree(uv[rows]).query_pairs(radius_px, output_type="ndarray")
+        if pairs.size == 0:
+            continue
+        i, j = rows[pairs[:, 0]], rows[pairs[:, 1]]
+        other = frame[i] != frame[j]
+        both = np.unique(np.r_[np.c_[i[other], frame[j[other]]], np.c_[j[other], frame[i[other]]]], axis=0)
+        n_other = np.bincount(both[:, 0], minlength=len(uv)) if both.size else np.zeros(len(uv), np.int64)
+        out[rows] = n_other[rows] >= min_frames
+    return out

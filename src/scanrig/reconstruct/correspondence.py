@@ -8,9 +8,13 @@ detections' covariances (plus a floor for calibration error). A hypothesis is *c
 its χ² passes the gate for ``2 n − 3`` degrees of freedom — for two views this is the epipolar
 test, for more it also checks that all rays meet. Per frame the consistent hypothesis with the
 most views wins, then the lowest χ²; views that disagree are thereby dropped. When another
-consistent hypothesis with as many views gives a point that differs beyond the uncertainty of
-both, the frame is ambiguous and flagged instead of guessed. The winners are refined by
-Gauss–Newton (:func:`scanrig.triangulate`).
+consistent hypothesis gives a point that differs beyond the uncertainty of both, and either has
+as many views or uses none of the winner's candidates (a second lit point, such as a secondary
+reflection on a matte surface, seen consistently by two or more cameras), the frame is ambiguous
+and flagged instead of guessed. Candidates found at the same pixel frame after frame (fixed
+features such as glints of room light on polished metal, see
+:data:`~scanrig.reconstruct.candidates.STATIC_RADIUS_PX`) are never matched. The winners are
+refined by Gauss–Newton (:func:`scanrig.triangulate`).
 
 This is aniposelib's ``triangulate_possible`` made statistical (χ² gate instead of a pixel
 threshold) and vectorised across frames (reference notes §3).
@@ -42,7 +46,8 @@ class FrameStatus(IntEnum):
     """Outcome of matching one frame."""
 
     MATCHED = 0
-    #: Two consistent hypotheses with equal support disagree: flagged, not guessed.
+    #: Two consistent hypotheses disagree, with equal support or without a common candidate
+    #: (two distinct lit points): flagged, not guessed.
     AMBIGUOUS = 1
     #: At least two cameras had candidates but no pair of them agrees.
     NO_AGREEMENT = 2
@@ -131,7 +136,11 @@ def match_spots(
             _, dirs[:, i][seen] = cam.rays(cand.q[:, i][seen])
 
     hyp = hypotheses(n_cams, k)
-    possible = np.all(hyp[None] < cand.count[:, None, :], axis=2)  # (n_frames, n_hyp)
+    usable = np.arange(k) < cand.count[..., None]  # (n_frames, n_cams, k)
+    if cand.static is not None:
+        usable &= ~cand.static  # fixed features are not laser light
+    cam_idx = np.arange(n_cams)
+    possible = np.all((hyp[None] < 0) | usable[:, cam_idx, np.maximum(hyp, 0)], axis=2)  # (n_frames, n_hyp)
     fi, hi = np.nonzero(possible)
     choice = hyp[hi]  # (M, n_cams)
     p, info = _triangulate_choices(rig, cand.q, cov, dirs, fi, choice, refine=False, min_angle_rad=min_angle_rad)
@@ -148,17 +157,22 @@ def match_spots(
     best_row = np.flatnonzero(first)
     winner_of_row = np.cumsum(first) - 1  # index into best_row for every consistent row
 
-    # Ambiguity: a rival with as many views whose point differs beyond both uncertainties.
+    # Ambiguity: a rival whose point differs beyond both uncertainties and that either has as
+    # many views, or shares no candidate with the winner. A disjoint rival is a second lit point
+    # seen consistently by two or more cameras: a secondary reflection landing on a matte surface
+    # is a real spot, and it is often seen by more cameras than the beam's own hit on the shiny
+    # part, so the number of views does not tell which of the two the beam made.
     w = best_row[winner_of_row]
     delta = pc - pc[w]
     S = cov_c + cov_c[w]
     with np.errstate(invalid="ignore"):
         d2 = np.einsum("ni,ni->n", delta, np.linalg.solve(S, delta[..., None])[..., 0])
-    rival = (nv == nv[w]) & (d2 > chi2_dist.ppf(gate_probability, 3))
+    disjoint = ~np.any((hc >= 0) & (hc == hc[w]), axis=1)
+    rival = ((nv == nv[w]) | disjoint) & (d2 > chi2_dist.ppf(gate_probability, 3))
     ambiguous_frames = np.unique(fc[rival])
 
     status = np.full(n_frames, FrameStatus.NO_AGREEMENT, np.uint8)
-    status[(cand.count > 0).sum(axis=1) < 2] = FrameStatus.TOO_FEW_CAMERAS
+    status[usable.any(axis=2).sum(axis=1) < 2] = FrameStatus.TOO_FEW_CAMERAS
     matched_frames = fc[best_row]
     status[matched_frames] = FrameStatus.MATCHED
     status[ambiguous_frames] = FrameStatus.AMBIGUOUS
@@ -169,7 +183,7 @@ def match_spots(
     p_final, info_final = _triangulate_choices(rig, cand.q, cov, dirs, frames_idx, final_choice,
                                                refine=True, min_angle_rad=min_angle_rad)
     status[(status == FrameStatus.MATCHED) & ~info_final.ok] = FrameStatus.NO_AGREEMENT
-    flags = _flags(cand, final_choice, status)
+    flags = _flags(cand, usable.sum(axis=2), final_choice, status)
     return SpotMatches(p_final, info_final, final_choice, status, flags)
 
 
@@ -185,11 +199,12 @@ def _triangulate_choices(rig, q, cov, dirs, frame_idx, choice, refine, min_angle
     return triangulate(rig, q_h, cov_px=cov_h, refine=refine, min_angle_rad=min_angle_rad, dirs=dirs_h)
 
 
-def _flags(cand: Candidates, choice: np.ndarray, status: np.ndarray) -> np.ndarray:
+def _flags(cand: Candidates, count: np.ndarray, choice: np.ndarray, status: np.ndarray) -> np.ndarray:
+    """Flag bits per frame; ``count`` is the number of usable (not fixed-feature) candidates."""
     used = choice >= 0
     flags = np.zeros(choice.shape[0], np.uint16)
-    flags[np.any((cand.count > 0) & ~used, axis=1)] |= np.uint16(Flag.DROPPED_VIEW)
-    flags[np.any(used & (cand.count > 1), axis=1)] |= np.uint16(Flag.REJECTED_CANDIDATES)
+    flags[np.any((count > 0) & ~used, axis=1)] |= np.uint16(Flag.DROPPED_VIEW)
+    flags[np.any(used & (count > 1), axis=1)] |= np.uint16(Flag.REJECTED_CANDIDATES)
     sat = np.take_along_axis(cand.saturated, np.maximum(choice, 0)[..., None], axis=2)[..., 0]
     flags[np.any(used & sat, axis=1)] |= np.uint16(Flag.SATURATED)
     flags[status == FrameStatus.AMBIGUOUS] |= np.uint16(Flag.AMBIGUOUS)

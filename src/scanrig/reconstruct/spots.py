@@ -50,7 +50,8 @@ def reconstruct_spots(
         One point per matched frame.
     summary : dict
         Frame counts per outcome and candidate counts (``n_candidates``, ``n_candidates_used``,
-        ``n_candidates_ignored`` beyond ``max_candidates``).
+        ``n_candidates_ignored`` beyond ``max_candidates``, ``n_candidates_static``: fixed
+        features, see :data:`~scanrig.reconstruct.candidates.STATIC_RADIUS_PX`).
     matches : SpotMatches
         Per-frame details (choices, statuses).
     """
@@ -71,5 +72,6 @@ def reconstruct_spots(
         n_candidates=int(cand.count.sum()) + cand.n_ignored,
         n_candidates_used=int((matches.choice >= 0).sum()),
         n_candidates_ignored=cand.n_ignored,
+        n_candidates_static=int(cand.static.sum()) if cand.static is not None else 0,
     )
     return cloud, summary, matches
