@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 import scanrig  # noqa: E402
-from scanrig.calibration.bundle import bundle_adjust, rotation_jacobians  # noqa: E402
+from scanrig.calibration.bundle import bundle_adjust  # noqa: E402
 from scanrig.calibration.corners import refine_corners  # noqa: E402
 from scanrig.calibration.detect import orient_chessboard, subpix_half_window  # noqa: E402
 from scanrig.calibration.init import initialise  # noqa: E402
@@ -112,20 +112,6 @@ SMALL_PROTOCOL = {"edge_m": 0.2, "squares": 7, "square_m": 0.025, "marker_m": 0.
 LIMITS = [0.05, 0.05, 0.3, 0.3, 0.01]
 
 
-def rotation_error_cov(result, camera: int, cov: np.ndarray) -> np.ndarray:
-    """(3, 3) covariance (rad²) of camera ``camera``'s rotation error ``rvec(R_est R_trueᵀ)``.
-
-    The solver's rotation unknowns are Rodrigues vectors r, with d(R p)/dr = -R [p]x M
-    (:func:`rotation_jacobians`), so a change dr turns R into exp([R M dr]x) R: the error vector
-    is R M dr and its covariance (R M) C_rr (R M)ᵀ. For these cameras (turned by ~120 deg) the
-    RMS sigma of the raw r components (``Uncertainty.rotation_std_deg``) is ~20 % larger.
-    """
-    sl = result.layout.camera_pose[camera]
-    R, M = rotation_jacobians(result.x[sl][None, :3])
-    A = R[0] @ M[0]
-    return A @ cov[sl, sl][:3, :3] @ A.T
-
-
 def cube_rig(n_seeds: int, protocol: dict, title: str) -> None:
     p = protocol
     n_shots = p["n_shots"]
@@ -161,7 +147,7 @@ def cube_rig(n_seeds: int, protocol: dict, title: str) -> None:
             zs.append(np.concatenate([(ce.params - ct.params) / unc.params_std[ct.name],
                                       (ce.center_world - centre_true) / unc.center_std_m[ct.name]]))
             w = (ce.cam_from_world @ truth[c].inverse()).rvec
-            z_rot.append(np.linalg.solve(np.linalg.cholesky(rotation_error_cov(res, c, unc.covariance)), w))
+            z_rot.append(np.linalg.solve(np.linalg.cholesky(unc.rotation_cov_rad2[ce.name]), w))
             rows.append([abs(ce.params[0] / ct.params[0] - 1) * 100, abs(ce.params[1] / ct.params[1] - 1) * 100,
                          np.abs(ce.params[2:4] - ct.params[2:4]).max(),
                          np.linalg.norm(ce.center_world - centre_true) * 1000, np.degrees(np.linalg.norm(w))])

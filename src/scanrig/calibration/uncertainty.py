@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.calibration.bundle import BundleResult
+from scanrig.calibration.bundle import BundleResult, rotation_jacobians
 from scanrig.geometry.camera import Camera
 from scanrig.geometry.transform import RigidTransform
 
@@ -42,8 +42,12 @@ class Uncertainty:
         ``camera -> (n_params,)`` standard deviation of each intrinsic parameter (0 when fixed).
     center_std_m : dict
         ``camera -> (3,)`` standard deviation of the camera centre along world x, y, z, metres.
+    rotation_cov_rad2 : dict
+        ``camera -> (3, 3)`` covariance of the camera's rotation error vector ``rvec(R_est R_trueᵀ)``,
+        rad² (the solver's Rodrigues-vector covariance mapped through d(R p)/d rvec, see
+        :func:`rotation_error_covariance`).
     rotation_std_deg : dict
-        ``camera -> float`` RMS standard deviation of the rotation vector components, degrees.
+        ``camera -> float`` RMS standard deviation of that rotation error over the three axes, degrees.
     warnings : list of str
         Parameters the data cannot determine, and unobservable directions.
     """
@@ -51,6 +55,7 @@ class Uncertainty:
     covariance: np.ndarray
     params_std: dict
     center_std_m: dict
+    rotation_cov_rad2: dict
     rotation_std_deg: dict
     warnings: list
 
@@ -80,7 +85,7 @@ def covariance(result: BundleResult) -> Uncertainty:
                             + "; add views with other tilts and positions of the target")
     cov = inv_scaled / scale[:, None] / scale[None, :] * result.sigma_px ** 2
     layout, state = result.layout, result.state
-    params_std, center_std, rot_std = {}, {}, {}
+    params_std, center_std, rot_cov, rot_std = {}, {}, {}, {}
     for c, cam in enumerate(state.cameras):
         index = layout.intrinsics[c]
         std = np.zeros(len(cam.params))
@@ -97,13 +102,33 @@ def covariance(result: BundleResult) -> Uncertainty:
         pose = layout.camera_pose[c]
         if pose is None:
             center_std[cam.name] = np.zeros(3)
+            rot_cov[cam.name] = np.zeros((3, 3))
             rot_std[cam.name] = 0.0
             continue
         C = cov[pose, pose]
         J_center = center_jacobian(cam.cam_from_world)
         center_std[cam.name] = np.sqrt(np.maximum(np.diag(J_center @ C @ J_center.T), 0.0))
-        rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(C[:3, :3]) / 3.0)))
-    return Uncertainty(cov, params_std, center_std, rot_std, warnings)
+        rot_cov[cam.name] = rotation_error_covariance(cam.cam_from_world.rvec, C[:3, :3])
+        rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(rot_cov[cam.name]) / 3.0)))
+    return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, warnings)
+
+
+def rotation_error_covariance(rvec: np.ndarray, cov_rvec: np.ndarray) -> np.ndarray:
+    """(3, 3) covariance of the rotation error vector from that of the Rodrigues vector ``rvec``.
+
+    d(R p)/dr = -R [p]x M (:func:`scanrig.calibration.bundle.rotation_jacobians`), so a change dr
+    turns R into exp([R M dr]x) R: the error vector is ``R M dr``. For large rotations the raw
+    Rodrigues components' sigmas differ from the rotation's own (by ~20 % at 120 deg).
+
+    Parameters
+    ----------
+    rvec : ndarray of shape (3,)
+    cov_rvec : ndarray of shape (3, 3)
+        Covariance of ``rvec``, rad².
+    """
+    R, M = rotation_jacobians(np.asarray(rvec, dtype=float)[None, :])
+    A = R[0] @ M[0]
+    return A @ cov_rvec @ A.T
 
 
 def _parameter_names(result: BundleResult) -> list[str]:
