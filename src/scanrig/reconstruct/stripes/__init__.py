@@ -38,7 +38,12 @@ covariance interpolated from the detections still predicts a tenth of a millimet
    own position uncertainty at the point, is one more measurement: the hypothesis is re-solved
    with it and its χ² (now ``m`` degrees of freedom) must pass the gate. Two-view points are
    tested by the plane only; a secondary reflection, even one every camera sees consistently,
-   and a wrong branch are off it. Without a usable plane only three-view points are kept.
+   and a wrong branch are off it. That test has power only where the plane is known: a two-view
+   point is kept where the plane's position sigma at the point is at most its own sigma along
+   the normal (:data:`~.plane_step.PLANE_SIGMA_RATIO_MAX`). A stripe whose three-view points lie
+   on a flat floor fixes a line, not a plane; two-view points off that line — wrong matches
+   included, centimetres away with a sigma of tenths of a millimetre — would pass any χ². Without
+   a usable plane only three-view points are kept.
 6. **One detection, one point.** Consistent hypotheses are accepted greedily — smallest sigma
    first, then most views — and a hypothesis is dropped when one of its detections already
    belongs to an accepted point: no detection supports two points, and a surface point is not

@@ -12,6 +12,10 @@ from scanrig.reconstruct.stripes.solve import SolvedHypotheses, solve
 #: A two-view point is kept only if the plane makes it at most this many times more precise than
 #: its two views do: the plane test sees errors at the scale of the views' own sigma.
 PLANE_GAIN_MAX = 4.0
+#: ... and only where the plane's own position is known at least this well, relative to the
+#: standard deviation of the two-view point along the plane's normal: the plane χ² then flags
+#: errors of a few of the point's own sigmas (``√10.8 · √2 σ ≈ 4.7 σ`` at the 0.999 gate).
+PLANE_SIGMA_RATIO_MAX = 1.0
 
 
 def three_view_pass(h: SolvedHypotheses, gate_probability: float) -> np.ndarray:
@@ -48,10 +52,12 @@ def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_pr
     """Which hypotheses pass, with the plane as one more measurement where it measures depth.
 
     Where the reference ray crosses the plane at ``min_angle_rad`` or more, each hypothesis is
-    re-solved with the plane and must pass the χ² gate with ``m`` degrees of freedom; a two-view
-    point must moreover be located by its own views (the plane sharpens it at most
-    :data:`PLANE_GAIN_MAX` times). Elsewhere, and without a plane, the three-view gate
-    ``s_multi`` decides.
+    re-solved with the plane and must pass the χ² gate with ``m`` degrees of freedom. A two-view
+    point has no other test, so the test must have power at the point's own scale: the two views
+    must locate it (the plane sharpens it at most :data:`PLANE_GAIN_MAX` times), and the plane must
+    be known there (its position sigma at most :data:`PLANE_SIGMA_RATIO_MAX` times the point's
+    sigma along the normal). Elsewhere, and without a plane, the three-view gate ``s_multi``
+    decides.
 
     Returns
     -------
@@ -71,10 +77,16 @@ def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_pr
     passed = with_plane & (chi2_2 <= chi2_dist.ppf(gate_probability, m))
     # a two-view point must be located by its own views, the plane only checking and
     # sharpening it: where the views leave it loose, the plane test cannot see errors
-    # (a reflection's ray meets the plane somewhere) that the plane-made sigma would hide
+    # (a reflection's ray meets the plane somewhere) that the plane-made sigma would hide;
+    # and the plane must be known where the point is: beyond its inliers, or about a stripe
+    # that is a straight line in space (a flat floor: no point fixes the plane's tilt about it),
+    # its position sigma grows to metres, the χ² passes any wrong match, and the views' own
+    # sigma (tenths of a millimetre) hides an error of centimetres
     with np.errstate(invalid="ignore"):  # failed solutions have NaN covariances
+        along_normal = np.sqrt(np.einsum("i,nij,j->n", plane.normal, h.cov, plane.normal))
         loose = (m == 1) & ~(sigma_from_covariance(h.cov) <= PLANE_GAIN_MAX * sigma_from_covariance(cov2))
-    passed &= ~loose
+        blind = (m == 1) & ~(plane.offset_sigma(np.nan_to_num(h.p)) <= PLANE_SIGMA_RATIO_MAX * along_normal)
+    passed &= ~loose & ~blind
     p = np.where(with_plane[:, None], p2, h.p)
     cov = np.where(with_plane[:, None, None], cov2, h.cov)
     resid = np.where(with_plane, resid2, h.residual_px)

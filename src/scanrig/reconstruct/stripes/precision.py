@@ -14,9 +14,8 @@ axis (0.6-0.85 on the simulated sessions).
 
 A rig that cannot reach the target — a long working distance, a poor calibration — keeps few
 points; its summary says how many were left out (``points_imprecise``, ``max_sigma_mm``), and its
-user sets the accuracy it needs instead. (On the simulated sphere session the cut also removes
-a few dozen wrong two-view matches, sigma 0.11-0.9 mm, whose depth error lies in the light plane
-where no test sees it; that protection is incidental, not a bound.)
+user sets the accuracy it needs instead. The cut bounds the noise, not gross errors: those are
+the consistency tests' task (no point of the simulated sessions is 1 mm off even without a cut).
 """
 
 from __future__ import annotations

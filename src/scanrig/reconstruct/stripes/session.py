@@ -62,7 +62,8 @@ def reconstruct_stripes(
     summary : dict
         Frames, frames with a plane, multi-view and single-view points, two-view pairs (branches
         of epipolar crossings) and those rejected (off the plane, no plane to test them, located
-        by the plane only, contradicted by a third camera), points left out as imprecise and the
+        by the plane only, where the plane is not known, contradicted by a third camera), points
+        left out as imprecise and the
         sigma limit (``max_sigma_mm``), and the largest estimated extra calibration noise
         (``floor_extra_px``).
     """
