@@ -178,9 +178,13 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     """
     n = len(points)
     r = settings.constants.r
-    sigma_c = fits.b / r * z_scale  # (C,) metres
+    sigma_c = fits.b / r * z_scale  # (C,) metres: the scale of the rejection point
+    # how closely the chart's network follows its points: the held-out noise scale before the
+    # cap of the robust start (a chart straddling a step keeps a tight rejection point from its
+    # start, but its held-out residuals stay large)
+    sigma_fit = np.maximum(fits.sigma_upper * z_scale, sigma_c)
     # reference noise: the known sensor noise if given, else the typical chart's
-    sigma_ref = sigma_floor if sigma_floor > 0 else max(float(np.median(sigma_c)), 1e-300)
+    sigma_ref = sigma_floor if sigma_floor > 0 else max(float(np.median(sigma_fit)), 1e-300)
     cos_max = np.cos(MAX_NORMAL_ANGLE)
     acc = np.zeros((n, 7))  # weight, denoised xyz, residual, score, sigma
     acc_d = np.zeros((n, 4))  # guarded weight, denoised xyz
@@ -198,7 +202,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
             np.full(m, sigma_c[c]),
         ])
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
-        if sigma_c[c] <= TRUST_FACTOR * sigma_ref:
+        if sigma_fit[c] <= TRUST_FACTOR * sigma_ref:
             agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
             # a point beyond the rejection point of the fit but consistent with the plane of its
             # neighbours lies on structure the fit smooths away (an edge, a step): this chart must
@@ -206,11 +210,11 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
             limit = np.full(m, r * sigma_c[c])
             if point_sigma is not None:  # absolute reference: the points' own predicted sigma
                 own_sigma = np.maximum(point_sigma[chart.members], sigma_floor)
-                agree &= sigma_c[c] <= TRUST_FACTOR * own_sigma
+                agree &= sigma_fit[c] <= TRUST_FACTOR * own_sigma
                 limit = np.minimum(limit, r * own_sigma)
             fits_point = ((np.abs(local[:, 2] - height) <= limit)
                           | (np.abs(_local_residual(local)) > limit))
-            wd = w * agree * fits_point * (sigma_ref / sigma_c[c]) ** 2
+            wd = w * agree * fits_point * (sigma_ref / sigma_fit[c]) ** 2
             np.add.at(acc_d, chart.members, np.column_stack([wd, wd[:, None] * projected]))
     weight = acc[:, 0]
     if np.any(weight <= 0):

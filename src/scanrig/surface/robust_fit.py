@@ -37,6 +37,7 @@ import torch
 
 from scanrig.errors import InputError
 from scanrig.surface.hampel import HampelConstants, check_q, hampel_rho, hampel_weight, robust_scale
+from scanrig.surface.local_start import robust_start
 from scanrig.surface.network import HeightFieldNets
 
 LOSSES = ("hampel", "mse", "huber")
@@ -59,19 +60,29 @@ class FitSettings:
         Network, see :class:`~scanrig.surface.network.HeightFieldNets`.
     n_folds : int
         Folds for the held-out residuals (>= 2).
-    lad_steps, trim_steps : int
-        IRLS steps of the median start and concentration steps of the trimmed start
-        (``"hampel"`` only; output layer only).
+    start_neighbours : int
+        Neighbours of the local trimmed planes of the robust start (``"hampel"`` only, see
+        :mod:`scanrig.surface.local_start`).
+    start_epochs : int
+        Epochs of weighted least squares on the start's good points before the Hampel loss.
     epochs : int
         Full-batch epochs of back-propagation on the loss.
     update_every : int
         Epochs between updates of the noise scale and the cut-offs.
     final_irls : int
         Iteratively reweighted least-squares steps of the output layer after the last epoch.
+    refit_epochs : int
+        Epochs of the reweighting step (``"hampel"`` only; 0 skips it): the final robust
+        weights frozen, the networks retrained from their initial hidden layers by weighted
+        least squares.
     learning_rate : float
         Adam step at the start; it decays by cosine to ``learning_rate / 20``.
     constants : HampelConstants
         ``(p, r, gamma)`` of the tanh estimator.
+    scale_cut : float
+        Truncation, in units of the scale, of the refinement steps of the noise scale
+        (:func:`~scanrig.surface.hampel.robust_scale`); below the rejection point ``r`` so that
+        one-sided outliers just beyond ``r`` sigma cannot inflate it.
     n_boot : int
         Bootstrap resamples for the upper bound of the noise scale.
     alpha : float
@@ -84,13 +95,15 @@ class FitSettings:
     hidden: int = 24
     depth: int = 2
     n_folds: int = 2
-    lad_steps: int = 20
-    trim_steps: int = 20
+    start_neighbours: int = 24
+    start_epochs: int = 100
     epochs: int = 300
     update_every: int = 40
     final_irls: int = 5
+    refit_epochs: int = 300
     learning_rate: float = 0.01
     constants: HampelConstants = field(default_factory=HampelConstants)
+    scale_cut: float = 2.5
     n_boot: int = 200
     alpha: float = 0.05
 
@@ -247,14 +260,16 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     cut = np.full(n_charts, np.inf)
     weight = m.double()
     history = []
-    if settings.loss == "hampel":  # robust start on the initial random features, no gradient step
-        with torch.no_grad():
-            feats = nets.features(x)
-            for step in range(settings.lad_steps + settings.trim_steps):
-                coef = _weighted_solve(feats, t, weight)
-                r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-                weight = _irls_weight(r, m, settings.loss, None, keep, lad=step < settings.lad_steps)
-            nets.set_output(coef)
+    initial = [p.detach().clone() for p in nets.hidden_parameters()]
+    if settings.loss == "hampel":  # high-breakdown start: weights and scale from local LTS planes
+        good, start_upper = robust_start(uv, z, valid, q=settings.q, cut=settings.constants.r, rng=rng,
+                                         k=settings.start_neighbours, scale_cut=settings.scale_cut,
+                                         n_boot=settings.n_boot,
+                                         alpha=settings.alpha)
+        cut[:] = settings.constants.r * np.maximum(start_upper, sigma_floor)
+        weight = weight * torch.as_tensor(np.repeat(good, k, axis=0), device=device).double()
+        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.start_epochs)
+    state = None
     for epoch in range(settings.epochs):
         if epoch % settings.update_every == 0:
             state = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
@@ -278,6 +293,21 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
             weight = _irls_weight(r, m, settings.loss, state, keep)
         nets.set_output(coef)
+    if settings.loss == "hampel" and settings.refit_epochs > 0:
+        # reweighting step: the robust weights frozen, every copy retrained from its initial
+        # hidden layers by weighted least squares (what the robust fit has learnt is which
+        # points to trust and how much; the trajectory of the redescending fit is forgotten)
+        with torch.no_grad():
+            for p, p0 in zip(nets.hidden_parameters(), initial):
+                p.copy_(p0)
+        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.refit_epochs)
+        with torch.no_grad():
+            feats = nets.features(x)
+            for _ in range(settings.final_irls):
+                coef = _weighted_solve(feats, t, weight)
+                r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+                weight = _irls_weight(r, m, settings.loss, state, keep)
+            nets.set_output(coef)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
     history.append({"epoch": settings.epochs, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
@@ -287,6 +317,31 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                      residual_heldout=final["residual"], sigma=final["sigma"],
                      sigma_upper=final["sigma_upper"], a=final["a"], b=final["b"],
                      beta=final["beta"], history=history)
+
+
+def _weighted_least_squares(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
+                            weight: torch.Tensor, n_train: torch.Tensor, settings: FitSettings,
+                            epochs: int) -> None:
+    """Train every copy on the weighted squared loss with fixed weights, in place.
+
+    The schedule is the plain least-squares one (Adam with cosine decay over ``epochs``, the
+    output layer at its weighted optimum every epoch).
+    """
+    opt = torch.optim.Adam(nets.hidden_parameters(), lr=settings.learning_rate)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs, 1),
+                                                       eta_min=settings.learning_rate / 20)
+    w = weight.float()
+    for _ in range(epochs):
+        feats = nets.features(x)
+        with torch.no_grad():
+            coef = _weighted_solve(feats, t, weight)
+            nets.set_output(coef)
+        r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+        loss_per_copy = 0.5 * (w * r.square()).sum(dim=1) / n_train
+        opt.zero_grad(set_to_none=True)
+        loss_per_copy.sum().backward()
+        opt.step()
+        sched.step()
 
 
 def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -365,7 +420,7 @@ def _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, de
     sigma_upper = np.empty(n_charts)
     for c in range(n_charts):
         sigma[c], sigma_upper[c] = robust_scale(residual[c, valid[c]], settings.q, rng=rng,
-                                                cut=const.r, n_boot=settings.n_boot,
+                                                cut=settings.scale_cut, n_boot=settings.n_boot,
                                                 alpha=settings.alpha)
     sigma_upper = np.maximum(sigma_upper, sigma_floor)
     b = np.minimum(cut, const.r * sigma_upper)

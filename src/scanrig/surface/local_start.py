@@ -1,0 +1,120 @@
+"""High-breakdown start of the robust fit: least trimmed squares planes through neighbourhoods.
+
+A redescending loss must start near a good fit (reference notes section 1.4: "starting with a
+nonrobust estimate will often lead to the wrong local optimum"). The start must also know the
+noise scale, or its cut-offs admit the outliers. Both come from small local fits here (our
+choice, after the first stage of Sinha & Schunck's two-stage robust surface reconstruction):
+
+1. every point's ``k`` nearest neighbours (the point itself left out) get a plane
+   ``h = c0 + c1 du + c2 dv`` by least trimmed squares on the half of them with the smallest
+   residuals (concentration steps from the neighbours' median; breakdown point 1/2 locally, so
+   the start survives a global bad fraction up to ``q`` <= 1/2 wherever the bad points are not
+   clustered);
+2. the point's *held-out* residual is its height minus that plane at the point, and the plane's
+   own scale (trimmed, made consistent for Gaussian residuals) says whether the neighbourhood is
+   a surface at all: inside a cluster of outliers (a patch of secondary reflections, all of it
+   bad) the kept half is spread over the cluster's height range, far wider than the noise;
+3. the noise scale of the chart is the robust scale (breakdown point ``q``, bootstrap upper
+   bound) of the held-out residuals; a point starts as good when its residual is within the
+   Hampel rejection point and its neighbourhood is a surface.
+
+The network then interpolates across what the start leaves out (clusters, edges) from the good
+points around it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from scanrig.surface.hampel import robust_scale, trimmed_consistency
+
+#: Neighbourhood scale above this multiple of the chart's noise scale: not a surface (a cluster).
+SURFACE_SCALE_FACTOR = 2.5
+
+
+def local_trimmed_planes(uv: np.ndarray, z: np.ndarray, *, k: int = 24, keep: float = 0.5,
+                         steps: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out residual and trimmed scale of a least-trimmed-squares plane per neighbourhood.
+
+    Parameters
+    ----------
+    uv : (m, 2) float array
+        Chart coordinates.
+    z : (m,) float array
+        Heights.
+    k : int
+        Neighbours (the point itself excluded), clipped to ``m - 1``.
+    steps : int
+        Concentration steps.
+
+    Returns
+    -------
+    residual : (m,) float array
+        ``z`` minus the plane of the point's neighbours at the point.
+    scale : (m,) float array
+        Scale of the kept half of the neighbours' residuals (Gaussian-consistent).
+    """
+    m = len(z)
+    k = max(3, min(k, m - 1))
+    _, idx = cKDTree(uv).query(uv, k=k + 1)
+    nb = idx[:, 1:]
+    du = uv[nb] - uv[:, None, :]  # (m, k, 2)
+    design = np.concatenate([np.ones((m, k, 1)), du], axis=2)
+    zn = z[nb]
+    h = min(k, max(4, int(np.ceil(keep * k))))
+    coef = np.zeros((m, 3))
+    coef[:, 0] = np.median(zn, axis=1)
+    ridge = 1e-9 * np.eye(3)
+    for _ in range(steps):
+        r = zn - np.einsum("mki,mi->mk", design, coef)
+        kept = np.argsort(np.abs(r), axis=1)[:, :h]
+        a = np.take_along_axis(design, kept[..., None], axis=1)
+        b = np.take_along_axis(zn, kept, axis=1)
+        gram = np.einsum("mki,mkj->mij", a, a) + ridge * np.einsum("mki,mki->m", a, a)[:, None, None]
+        coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", a, b)[..., None])[..., 0]
+    r = zn - np.einsum("mki,mi->mk", design, coef)
+    r2 = np.sort(r * r, axis=1)[:, :h]
+    q_local = 1.0 - h / k
+    scale = np.sqrt(r2.mean(axis=1) / (trimmed_consistency(min(max(q_local, 1e-3), 0.5)) * (1.0 - 3.0 / h)))
+    return z - coef[:, 0], scale
+
+
+def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, cut: float,
+                 rng: np.random.Generator, k: int = 24, scale_cut: float = 2.5, n_boot: int = 200,
+                 alpha: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Starting weights (0/1) and noise-scale upper bound of every chart.
+
+    Parameters
+    ----------
+    uv : (C, n_max, 2) float array
+    z : (C, n_max) float array
+    valid : (C, n_max) bool array
+    q : float
+        Tolerated bad fraction (breakdown point of the chart's scale).
+    cut : float
+        Rejection point in units of the scale (Hampel ``r``).
+    rng : numpy.random.Generator
+        Bootstrap of the scale.
+    k : int
+        Neighbours of the local planes.
+    scale_cut, n_boot, alpha
+        Truncation of the scale's refinement, bootstrap resamples and level of its upper bound
+        (:func:`~scanrig.surface.hampel.robust_scale`).
+
+    Returns
+    -------
+    good : (C, n_max) bool array
+        Points that start as good.
+    sigma_upper : (C,) float array
+        Bootstrap upper bound of each chart's noise scale from the held-out residuals.
+    """
+    good = np.zeros(valid.shape, dtype=bool)
+    sigma_upper = np.empty(len(valid))
+    for c in range(len(valid)):
+        m = int(valid[c].sum())
+        residual, scale = local_trimmed_planes(uv[c, :m], z[c, :m], k=k)
+        _, sigma_upper[c] = robust_scale(residual, q, rng=rng, cut=scale_cut, n_boot=n_boot,
+                                        alpha=alpha)
+        good[c, :m] = (np.abs(residual) <= cut * sigma_upper[c]) & (scale <= SURFACE_SCALE_FACTOR * sigma_upper[c])
+    return good, sigma_upper
