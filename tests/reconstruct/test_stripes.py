@@ -5,6 +5,7 @@ import pytest
 
 from scanrig.errors import InputError
 from scanrig.geometry import Rig
+from scanrig.geometry.uncertainty import sigma_from_covariance
 from scanrig.io.rig_file import save_rig
 from scanrig.laser.traces import write_traces
 from scanrig.reconstruct.candidates import frame_order
@@ -12,6 +13,7 @@ from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.pipeline import reconstruct_session
 from scanrig.reconstruct.points import read_points
 from scanrig.reconstruct.stripes import reconstruct_stripes
+from scanrig.reconstruct.stripes.precision import sigma_across_stripe
 from tests.reconstruct.synth import height_field, ring_rig, stripe_traces
 
 #: Noise across the stripe (px); a Gaussian fit on a good stripe reaches 0.05-0.25 px (notes §2).
@@ -101,12 +103,32 @@ def test_stripes_need_two_cameras_of_the_rig(rig):
 
 
 def test_default_precision_cut_is_the_accuracy_target(rig):
-    """Without max_sigma_m, points with a sigma above 0.1 mm are left out and counted."""
+    """Without max_sigma_m, points whose error across their stripe may exceed 0.1 mm are left out."""
     rng = np.random.default_rng(66)
     table = stripe_traces(rig, [-0.02, 0.06], rng, SIGMA_PX / 2)
     every, _ = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0), max_sigma_m=np.inf)
     cloud, summary = reconstruct_stripes(rig, table, frame_order(table), np.random.default_rng(0))
     assert summary["max_sigma_mm"] == 0.1
     assert 0 < len(cloud) < len(every)
-    assert summary["points_imprecise"] == np.sum(every.sigma > 1e-4) == len(every) - len(cloud)
-    assert np.all(cloud.sigma <= 1e-4)
+    assert summary["points_imprecise"] == len(every) - len(cloud)
+    # the bound across the stripe is at most the largest axis: every point within 0.1 mm is kept
+    kept = {tuple(x) for x in cloud.p_world}
+    assert kept <= {tuple(x) for x in every.p_world}
+    assert all(tuple(x) in kept for x in every.p_world[every.sigma <= 1e-4])
+    assert np.sqrt(np.mean(_height_errors(cloud) ** 2)) <= 1e-4
+
+
+def test_sigma_across_stripe_bounds_the_error_off_the_tangent():
+    """Along the stripe a point may be loose; across it (any normal) the bound is its sigma there."""
+    rng = np.random.default_rng(67)
+    x = np.linspace(-0.01, 0.01, 201)
+    p = np.c_[x, np.zeros_like(x), np.zeros_like(x)] + rng.normal(0.0, 2e-6, (len(x), 3))
+    along = np.diag([1e-3, 5e-5, 5e-5]) ** 2  # 1 mm along the stripe (x), 0.05 mm across
+    across = np.diag([5e-5, 5e-5, 1e-3]) ** 2  # 1 mm across (z, a possible normal)
+    cov = np.where(np.arange(len(x))[:, None, None] % 2 == 0, along, across)
+    bound = sigma_across_stripe(p, cov, p)
+    assert np.all(bound[1::2] == pytest.approx(1e-3))
+    assert np.all((bound[::2] > 5e-5) & (bound[::2] < 6e-5))  # plus the tangent's small angular error
+    assert np.all(bound <= sigma_from_covariance(cov))
+    # too few neighbours for a tangent: the largest axis
+    assert sigma_across_stripe(p[:3], cov[:3], p[:3]) == pytest.approx(sigma_from_covariance(cov[:3]))

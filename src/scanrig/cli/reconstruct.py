@@ -26,7 +26,9 @@ def command(
              "calibrated light_plane.toml.")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the robust light-plane fits; recorded in points.ply.")] = 0,
     max_sigma_mm: Annotated[Optional[float], typer.Option(
-        help="Leave out points whose predicted sigma (largest axis) exceeds this, mm; any mode. "
+        help="Leave out points whose predicted error bound exceeds this, mm; any mode. The bound is the "
+             "sigma along the covariance's largest axis; for multi-view stripes, the largest sigma "
+             "across the stripe (the surface normal is perpendicular to it). "
              "Default: 0.1 (the accuracy target) for multi-view stripes, no cut for spots.")] = None,
 ):
     """Triangulate the laser traces of a session into points.ply, rejecting reflections.
@@ -77,5 +79,5 @@ def command(
                   f"light plane; {summary['frames_with_plane']} frames with a plane; "
                   f"{summary['pairs_off_plane']} of {summary['pairs']} epipolar pairs off the plane (rejected)")
     if "points_imprecise" in summary:
-        detail += f"; {summary['points_imprecise']} left out with sigma above {summary['max_sigma_mm']:g} mm"
+        detail += f"; {summary['points_imprecise']} left out with error bound above {summary['max_sigma_mm']:g} mm"
     typer.echo(f"{head}{detail} -> {summary['out']}")

@@ -53,10 +53,12 @@ covariance interpolated from the detections still predicts a tenth of a millimet
    isolated noise peak or a reflection only this camera sees), are intersected with the plane
    (flag ``PLANE_SINGLE_VIEW``) unless their sigma exceeds :data:`~.single_view.SINGLE_VIEW_SIGMA_RATIO` times
    the frame's median multi-view sigma.
-8. **Precision.** Points whose sigma exceeds the accuracy target are left out: 0.1 mm
-   (:data:`~.precision.TARGET_SIGMA_M`) unless ``max_sigma_m`` says otherwise. With honest
-   covariances the kept cloud's RMS distance to the surface is then at most the target
-   (:mod:`.precision`).
+8. **Precision.** Points whose error across their stripe may exceed the accuracy target are left
+   out: 0.1 mm (:data:`~.precision.TARGET_SIGMA_M`) unless ``max_sigma_m`` says otherwise. The
+   surface normal is perpendicular to the stripe's 3-D tangent, so the bound is the largest
+   standard deviation perpendicular to the tangent (from the frame's own points), widened by the
+   tangent's angular error — at most ``sigma``. With honest covariances the kept cloud's RMS
+   distance to the surface is then at most the target (:mod:`.precision`).
 
 A stripe that is a straight line in space leaves the plane's tilt about that line undetermined;
 the plane's position uncertainty (lever arm from its inliers' true extent) grows away from the

@@ -1,4 +1,4 @@
-"""Points of one stripe frame: hypotheses, the light-plane step, one point per detection, flags."""
+"""Points of one stripe frame: hypotheses, light plane, one point per detection, flags, precision."""
 
 from __future__ import annotations
 
@@ -11,12 +11,13 @@ from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.accept import contradicted, greedy_unique
 from scanrig.reconstruct.stripes.epipolar import frame_branches, hypotheses
 from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, gate_on_plane, three_view_pass
+from scanrig.reconstruct.stripes.precision import sigma_across_stripe
 from scanrig.reconstruct.stripes.single_view import single_view_points
 from scanrig.reconstruct.stripes.solve import Observations, SolvedHypotheses, min_crossing_angle, solve
 
 
 def reconstruct_stripe_frame(rig, views, frame_index: int, rng, gate_probability: float,
-                             min_angle_rad: float, single_view: bool, branches=None):
+                             min_angle_rad: float, single_view: bool, branches=None, max_sigma_m: float = np.inf):
     """Points of one stripe frame (see :mod:`scanrig.reconstruct.stripes`).
 
     Parameters
@@ -35,16 +36,20 @@ def reconstruct_stripe_frame(rig, views, frame_index: int, rng, gate_probability
         Add the single-view points intersected with the plane.
     branches : dict, optional
         The frame's crossings (:func:`frame_branches`), computed when not given.
+    max_sigma_m : float
+        Points whose error across their stripe may exceed this (metres,
+        :func:`~.precision.sigma_across_stripe`) are left out; ``numpy.inf`` keeps every point.
 
     Returns
     -------
     cloud : PointCloud
     counts : dict
-        ``multi_view``, ``single_view`` points, ``pairs`` (branches), ``off_plane_pairs``
-        (two-view hypotheses rejected) and ``plane`` (1 if the frame has one).
+        ``multi_view``, ``single_view`` points kept, ``imprecise`` points left out, ``pairs``
+        (branches), ``off_plane_pairs`` (two-view hypotheses rejected) and ``plane`` (1 if the
+        frame has one).
     """
     cams = rig.cameras
-    counts = dict(multi_view=0, single_view=0, off_plane_pairs=0, pairs=0, plane=0)
+    counts = dict(multi_view=0, single_view=0, imprecise=0, off_plane_pairs=0, pairs=0, plane=0)
     branches = frame_branches(rig, views) if branches is None else branches
     hyps, crossed = _solve_hypotheses(cams, views, branches, min_angle_rad, counts)
     if not hyps:
@@ -84,19 +89,29 @@ def reconstruct_stripe_frame(rig, views, frame_index: int, rng, gate_probability
     order_rank = np.empty(len(priority), np.int64)
     order_rank[priority] = np.arange(len(priority))
     accepted = greedy_unique(det_ids, order_rank)
-    choice, p, resid, m, ref, sigma = (x[accepted] for x in (choice, p, resid, m, ref, sigma))
+    choice, p, cov, resid, m, ref, sigma = (x[accepted] for x in (choice, p, cov, resid, m, ref, sigma))
     flags = _multi_view_flags(views, hyps, choice, ref)
     clouds = [PointCloud(p, sigma, m + 1, resid, np.full(len(p), frame_index), flags)]
-    counts["multi_view"] = len(p)
+    covs = [cov]
 
     if single_view and plane is not None:
         sigma_ref = np.median(sigma) if len(sigma) else 0.0
         used = np.zeros(offsets[-1], bool)
         used[det_ids[accepted][det_ids[accepted] >= 0]] = True
-        lone = single_view_points(cams, views, plane, crossed, used, sigma_ref, frame_index)
+        lone, cov1 = single_view_points(cams, views, plane, crossed, used, sigma_ref, frame_index)
         clouds.append(lone)
-        counts["single_view"] += len(lone)
-    return PointCloud.concatenate(clouds), counts
+        covs.append(cov1)
+    cloud, cov = PointCloud.concatenate(clouds), np.concatenate(covs)
+    # the precision cut; the single views lean on the multi-view points, never the reverse
+    multi = cloud.n_views >= 2
+    across = np.empty(len(cloud))
+    across[multi] = sigma_across_stripe(cloud.p_world[multi], cov[multi], cloud.p_world[multi])
+    across[~multi] = sigma_across_stripe(cloud.p_world[~multi], cov[~multi], cloud.p_world)
+    precise = across <= max_sigma_m
+    counts["multi_view"] = int((precise & (cloud.n_views >= 2)).sum())
+    counts["single_view"] = int((precise & (cloud.n_views == 1)).sum())
+    counts["imprecise"] = int((~precise).sum())
+    return cloud.select(precise), counts
 
 
 def _solve_hypotheses(cams, views, branches: dict, min_angle_rad: float, counts: dict):

@@ -13,7 +13,7 @@ from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.epipolar import frame_branches
 from scanrig.reconstruct.stripes.floor import estimate_calibration_floor, floor_samples, inflate_views
 from scanrig.reconstruct.stripes.frame import reconstruct_stripe_frame
-from scanrig.reconstruct.stripes.precision import TARGET_SIGMA_M, split_by_precision
+from scanrig.reconstruct.stripes.precision import TARGET_SIGMA_M
 from scanrig.reconstruct.stripes.views import frame_views
 
 
@@ -52,9 +52,9 @@ def reconstruct_stripes(
         Raise the calibration floor per camera and image radius where the three-view points show
         the calibration to be worse than ``sigma_floor_px`` (:func:`estimate_calibration_floor`).
     max_sigma_m : float, optional
-        Points with a larger sigma (metres) are left out; default the 0.1 mm accuracy target
-        (:mod:`scanrig.reconstruct.stripes.precision` says why; ``numpy.inf`` keeps every point
-        that passed its tests).
+        Points whose error across their stripe may exceed this (metres) are left out; default the
+        0.1 mm accuracy target (:mod:`scanrig.reconstruct.stripes.precision` says why;
+        ``numpy.inf`` keeps every point that passed its tests).
 
     Returns
     -------
@@ -92,24 +92,22 @@ def reconstruct_stripes(
         if s2.any():
             for views in views_of.values():
                 inflate_views(rig, views, edges, s2)
-    totals = dict(multi_view=0, single_view=0, off_plane_pairs=0, pairs=0, plane=0)
+    limit_m = TARGET_SIGMA_M if max_sigma_m is None else max_sigma_m
+    totals = dict(multi_view=0, single_view=0, imprecise=0, off_plane_pairs=0, pairs=0, plane=0)
     clouds = []
     for f in range(len(frames)):
         if f in views_of:
             cloud, counts = reconstruct_stripe_frame(rig, views_of[f], f, rng, gate_probability, min_angle_rad,
-                                                     single_view, branches_of[f])
+                                                     single_view, branches_of[f], limit_m)
             clouds.append(cloud)
             for k, v in counts.items():
                 totals[k] += v
         if progress is not None:
             progress(f + 1, len(frames))
-    limit_m = TARGET_SIGMA_M if max_sigma_m is None else max_sigma_m
-    cloud, imprecise = split_by_precision(PointCloud.concatenate(clouds), limit_m)
-    totals["multi_view"] -= int((imprecise.n_views >= 2).sum())
-    totals["single_view"] -= int((imprecise.n_views == 1).sum())
+    cloud = PointCloud.concatenate(clouds)
     summary = dict(frames=len(frames), points=len(cloud), frames_with_plane=totals["plane"],
                    points_multi_view=totals["multi_view"], points_single_view=totals["single_view"],
-                   points_imprecise=len(imprecise), max_sigma_mm=round(1e3 * limit_m, 4),
+                   points_imprecise=totals["imprecise"], max_sigma_mm=round(1e3 * limit_m, 4),
                    pairs=totals["pairs"], pairs_off_plane=totals["off_plane_pairs"],
                    floor_extra_px=round(extra_px, 3))
     return cloud, summary

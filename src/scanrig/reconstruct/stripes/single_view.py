@@ -14,7 +14,7 @@ from scanrig.reconstruct.points import PointCloud
 SINGLE_VIEW_SIGMA_RATIO = 3.0
 
 
-def single_view_points(cams, views, plane, crossed, used, sigma_ref: float, frame_index: int) -> PointCloud:
+def single_view_points(cams, views, plane, crossed, used, sigma_ref: float, frame_index: int):
     """The frame's single-view points (flag ``PLANE_SINGLE_VIEW``), camera by camera.
 
     A detection qualifies when it is the brightest on its line, has no crossing in any other
@@ -42,10 +42,12 @@ def single_view_points(cams, views, plane, crossed, used, sigma_ref: float, fram
 
     Returns
     -------
-    PointCloud
+    cloud : PointCloud
+    cov : ndarray of shape (M, 3, 3)
+        The points' covariances, m².
     """
     offsets = np.cumsum([0] + [len(v.q) for v in views])
-    clouds = []
+    clouds, covs = [], [np.zeros((0, 3, 3))]
     for i, view in enumerate(views):
         n_i = len(view.q)
         if n_i == 0:
@@ -69,4 +71,5 @@ def single_view_points(cams, views, plane, crossed, used, sigma_ref: float, fram
         flags1[view.saturated[lone][fin][sharp]] |= np.uint16(Flag.SATURATED)
         clouds.append(PointCloud(p1[fin][sharp], sigma1[sharp], np.ones(sharp.sum()),
                                  np.full(sharp.sum(), np.nan), np.full(sharp.sum(), frame_index), flags1))
-    return PointCloud.concatenate(clouds)
+        covs.append(cov1[sharp])
+    return PointCloud.concatenate(clouds), np.concatenate(covs)
