@@ -11,6 +11,9 @@ amplitude 180 DN over 10 DN, noise 2 DN, rounded), next to:
   clipped at 0), run on the same images;
 - for speed, the time to read the frame once (``image.max()``), the floor of any detector.
 
+The "dark frame" rows subtract a laser-off frame of the same background and noise, which switches
+on the per-pixel noise model (:class:`scanrig.laser.image.NoiseModel`, fitted in every frame).
+
 Timings are on one core (OpenCV and BLAS limited to one thread): median wall and median and best
 CPU time (``time.process_time``, all threads of the process) of repeated runs.
 """
@@ -162,7 +165,13 @@ def candidates(rng, n_frames: int, n_noise_frames: int) -> dict:
         line_n += centres.size
     false_spot = sum(len(detect_spots(spot_image(SHAPE, [], rng, BACKGROUND, NOISE))) for _ in range(n_noise_frames))
     false_stripe = sum(len(detect_stripe(spot_image(SHAPE, [], rng, BACKGROUND, NOISE))) for _ in range(n_noise_frames))
+    # with a laser-off frame subtracted (its noise is the same in every frame; per-pixel noise model)
+    dark = spot_image(SHAPE, [], rng, BACKGROUND, NOISE)
+    false_dark = sum(len(detect_spots(spot_image(SHAPE, [], rng, BACKGROUND, NOISE), dark=dark))
+                     + len(detect_stripe(spot_image(SHAPE, [], rng, BACKGROUND, NOISE), dark=dark))
+                     for _ in range(n_noise_frames))
     return {"recall": hits / wanted, "n": wanted, "spot10": spot_hits / spot_n, "spot10_n": spot_n,
+            "false_dark_per_100": 100 * false_dark / n_noise_frames,
             "line10": line_hits / line_n, "line10_n": line_n,
             "false_spot_per_100": 100 * false_spot / n_noise_frames,
             "false_stripe_per_100": 100 * false_stripe / n_noise_frames, "noise_frames": n_noise_frames}
@@ -184,8 +193,11 @@ def timing(fn, repeats: int) -> tuple[float, float, float]:
 def speed(rng, repeats: int) -> dict:
     spot = spot_image(SHAPE, [(640.3, 500.7, AMPLITUDE, 1.5, 1.5)], rng, BACKGROUND, NOISE)
     stripe = stripe_image(SHAPE, lambda lines: 600.3 + 0.1 * lines, rng, AMPLITUDE, 1.5, BACKGROUND, NOISE)
+    dark = spot_image(SHAPE, [], rng, BACKGROUND, NOISE)
     return {"floor": timing(lambda: spot.max(), repeats), "spot": timing(lambda: detect_spots(spot), repeats),
             "stripe": timing(lambda: detect_stripe(stripe), repeats),
+            "spot_dark": timing(lambda: detect_spots(spot, dark=dark), repeats),
+            "stripe_dark": timing(lambda: detect_stripe(stripe, dark=dark), repeats),
             "cog_stripe": timing(lambda: cog_rows(stripe, BACKGROUND + 3 * NOISE), repeats)}
 
 
@@ -215,13 +227,16 @@ def main() -> None:
     print(f"  recall, stripe lines at SNR 10, sigma 0.8-2.5 px:   {c['line10']:.4f} of {c['line10_n']}")
     print(f"  false candidates per 100 noise-only 1280x1024 frames: spot {c['false_spot_per_100']:.1f}, "
           f"stripe {c['false_stripe_per_100']:.1f} ({c['noise_frames']} frames each)")
+    print(f"  ... with a dark frame subtracted: spot + stripe {c['false_dark_per_100']:.1f}")
     t = speed(rng, reps)
     print(f"\nSpeed, one 1280x1024 8-bit frame, one core (OpenCV threads {cv2.getNumThreads()}, "
           f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}), ms (median wall under the current load, "
           f"median and best CPU of {reps} runs)")
     print(f"{'task':28}{'wall':>8}{'cpu':>8}{'best':>8}{'x floor':>9}{'target':>8}")
     for name, key, target in (("read once (image.max)", "floor", ""), ("detect_spots", "spot", "5"),
-                              ("detect_stripe", "stripe", "20"), ("COG7 baseline, stripe rows", "cog_stripe", "")):
+                              ("detect_stripe", "stripe", "20"), ("detect_spots, dark frame", "spot_dark", ""),
+                              ("detect_stripe, dark frame", "stripe_dark", ""),
+                              ("COG7 baseline, stripe rows", "cog_stripe", "")):
         wall, cpu, best = t[key]
         print(f"{name:28}{wall:8.2f}{cpu:8.2f}{best:8.2f}{best / t['floor'][2]:9.1f}{target:>8}")
     print(f"\nload average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")

@@ -118,3 +118,47 @@ def test_sixteen_bit_roi_and_colour_give_full_frame_coordinates():
 def test_bad_image_names_the_argument():
     with pytest.raises(ShapeError, match="image must be an 8- or 16-bit image"):
         scanrig.detect_spots(np.zeros((10, 10)))
+
+
+def _exposure(rng, level_dn, gain_e_per_dn=10000.0 / 255.0, read_noise_e=12.0, black_dn=2.0):
+    """One 8-bit exposure of a noise-free scene (DN above black): Poisson electrons, read noise, rounding."""
+    electrons = rng.poisson(level_dn * gain_e_per_dn) + rng.normal(0.0, read_noise_e, level_dn.shape)
+    return np.clip(np.rint(black_dn + electrons / gain_e_per_dn), 0, 255).astype(np.uint8)
+
+
+def test_static_glints_in_the_dark_frame_are_not_candidates_but_a_faint_spot_is():
+    # Room light glinting on polished metal: bright in the dark frame and in every laser frame.
+    # Their difference carries the shot noise of their level (about 3.4 DN at 220 DN, against
+    # 0.7 DN on the dim background), which a threshold from the local cell noise let through.
+    rng = np.random.default_rng(601)
+    shape = (256, 320)
+    vv, uu = np.mgrid[: shape[0], : shape[1]].astype(float)
+    scene = np.full(shape, 3.0)
+    glints = [(u, v) for v in range(24, 240, 36) for u in range(24, 300, 44)]
+    for u, v in glints:
+        scene += 220.0 * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.5**2))
+    spot_u, spot_v = 190.3, 205.6  # between glints
+    laser = 14.0 * np.exp(-((uu - spot_u) ** 2 + (vv - spot_v) ** 2) / (2 * 1.0**2))
+    dark = _exposure(rng, scene)
+    frame = _exposure(rng, scene + laser)
+    table = scanrig.detect_spots(frame, dark=dark)
+    assert len(table) == 1
+    assert table["u"][0].as_py() == pytest.approx(spot_u, abs=0.3)
+    assert table["v"][0].as_py() == pytest.approx(spot_v, abs=0.3)
+
+
+def test_glints_at_and_beyond_the_clip_level_are_not_candidates():
+    # One glint clipped in the dark frame too (it cannot show the laser), one just below the clip
+    # level that noise pushes over it in some frames: neither may read as a spot at full scale.
+    rng = np.random.default_rng(602)
+    shape = (96, 128)
+    vv, uu = np.mgrid[: shape[0], : shape[1]].astype(float)
+    scene = 3.0 + sum(a * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 2.0**2))
+                      for u, v, a in ((40, 50, 600.0), (80, 70, 250.0)))
+    laser = 60.0 * np.exp(-((uu - 90.4) ** 2 + (vv - 30.7) ** 2) / (2 * 1.2**2))
+    dark = _exposure(rng, scene)
+    assert (dark == 255).sum() > 5
+    for _ in range(8):
+        frame = _exposure(rng, scene + laser)
+        table = scanrig.detect_spots(frame, dark=dark)
+        assert len(table) == 1 and table["u"][0].as_py() == pytest.approx(90.4, abs=0.2)

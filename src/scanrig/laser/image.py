@@ -8,9 +8,18 @@ The detectors see one ``(H, W)`` *signal* image in DN (digital numbers of the in
   into a biased half-normal background and bias both the noise estimate and the fit tails;
 - minus the laser-off (dark) frame of the same camera, processed the same way, when given.
 
+Noise. Without a dark frame the noise is measured per ``NOISE_CELL``-pixel cell (see
+:func:`estimate_noise`). With one, it is modelled per pixel (:class:`NoiseModel`): the difference
+of two exposures of the same scene has the shot noise of *its level*, which a cell measured over
+mostly dark pixels underestimates by far at a bright pixel (a glint of room light on polished
+metal, the edge of a lit part). A cell-based threshold there let the dark frame's own noise,
+the same in every frame, pass as a faint spot at the same pixel frame after frame.
+
 Pixels whose laser channel sits at the saturation level are flagged; the fit excludes them (the
 unclipped tails still fix the centre) and candidate finding sees them at full scale, so a white
-saturated core with coloured fringes is one trace, not two fringes.
+saturated core with coloured fringes is one trace, not two fringes. After dark subtraction "full
+scale" is the clip level minus the dark's signal (what the laser added at least), and pixels
+clipped in the dark frame too read 0: there the laser cannot be seen.
 """
 
 from __future__ import annotations
@@ -40,6 +49,60 @@ _NOISE_CLIP = 3.0
 _MAD_TO_SIGMA = 1.4826
 #: Standard deviation of rounding to integers, DN.
 QUANTIZATION_SIGMA = 1.0 / np.sqrt(12.0)
+#: The photon-transfer fit of :func:`fit_noise_model`: clipped, reweighted iterations, the clip in
+#: σ of the current model, and at most this many high-pass samples (every band, or every k-th).
+_PTC_ITERATIONS = 3
+_PTC_CLIP = 4.0
+_PTC_MAX_SAMPLES = 12_000
+_PTC_MIN_SAMPLES = 50
+#: ... whose slope is raised by this many of its standard errors (see :func:`fit_noise_model`).
+_PTC_SLOPE_MARGIN = 2.0
+#: Squared weights of the channels in the signal of a colour frame: red minus the mean of the
+#: others, and OpenCV's RGB -> grey luma.
+_CHANNEL_WEIGHTS2 = {"red": (1.0, 0.25, 0.25), "green": (0.25, 1.0, 0.25), "blue": (0.25, 0.25, 1.0),
+                     "grey": (0.299**2, 0.587**2, 0.114**2)}
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Per-pixel noise of a dark-subtracted signal: variance ``offset + slope · L``, DN².
+
+    A pixel at raw level ``L`` DN (above an unknown black level) has variance ``a + L / g``: read
+    noise and rounding, plus shot noise with ``g`` electrons per DN. Where the laser is off, frame
+    and dark are at the dark's level, so their difference has ``2a + 2L/g``: linear in the dark's
+    level, whatever the gain and black level (they are measured, see :func:`fit_noise_model`).
+    The laser's own shot noise is left to the fit (:func:`scanrig.laser.fit.parameter_covariance`).
+    For a colour signal, ``L`` is the channels' levels weighted by their squared coefficients.
+
+    Attributes
+    ----------
+    dark : (H, W) or (H, W, 3) uint8 or uint16 array
+        The raw laser-off frame inside the region of interest.
+    weights : (3,) tuple of float or None
+        Squared channel coefficients of the signal; None for a one-channel frame.
+    offset : float
+        Variance at level 0, DN² (may be negative: the black level is not at 0).
+    slope : float
+        Variance per DN of level, DN (twice the inverse gain).
+    """
+
+    dark: np.ndarray
+    weights: tuple[float, float, float] | None
+    offset: float
+    slope: float
+
+    def sigma_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Noise σ, DN, at integer signal coordinates: the root of the mean variance of the 3 × 3
+        pixels around each (the box sum of the detectors has 9 times that variance)."""
+        h, w = self.dark.shape[:2]
+        d = np.arange(-1, 2)
+        rows = np.clip(np.asarray(v)[..., None, None] + d[:, None], 0, h - 1)
+        cols = np.clip(np.asarray(u)[..., None, None] + d[None, :], 0, w - 1)
+        level = self.dark[rows, cols].astype(np.float32)
+        if self.weights is not None:
+            level = level @ np.asarray(self.weights, np.float32)
+        var = self.offset + self.slope * level.mean(axis=(-2, -1))
+        return np.sqrt(np.maximum(var, QUANTIZATION_SIGMA**2)).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -60,9 +123,12 @@ class LaserImage:
         including quantisation.
     noise : (Hn, Wn) float32 array, DN
         Local noise standard deviation per ``NOISE_CELL`` pixel cell (see :func:`estimate_noise`):
-        shot noise makes bright parts of the scene noisier than dark ones.
+        shot noise makes bright parts of the scene noisier than dark ones. The pre-scan uses it.
     background : (Hc, Wc) float32 array, DN
         Local background per ``BG_CELL`` pixel cell (see :func:`background_cells`).
+    noise_model : NoiseModel or None
+        Per-pixel noise, when a dark frame was subtracted and the noise was not given; then
+        :meth:`noise_at` uses it instead of ``noise``.
     """
 
     signal: np.ndarray
@@ -71,13 +137,17 @@ class LaserImage:
     noise_sigma: float
     noise: np.ndarray
     background: np.ndarray
+    noise_model: NoiseModel | None = None
 
     def background_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Background level, DN, at integer signal coordinates ``u``, ``v`` (same shape)."""
         return _cell_lookup(self.background, BG_CELL, u, v)
 
     def noise_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Noise standard deviation, DN, at integer signal coordinates ``u``, ``v`` (same shape)."""
+        """Noise standard deviation, DN, at integer signal coordinates ``u``, ``v`` (same shape):
+        of the 3 × 3 pixels around each with a noise model, else of the cell."""
+        if self.noise_model is not None:
+            return self.noise_model.sigma_at(u, v)
         return _cell_lookup(self.noise, NOISE_CELL, u, v)
 
 
@@ -147,17 +217,36 @@ def prepare_image(
         saturated = channel >= saturation_level
     signal = _signal(image, color)
     if dark is not None:
-        signal = signal.astype(np.float32) - _signal(dark, color).astype(np.float32)
+        dark_signal = _signal(dark, color).astype(np.float32)
+        signal = signal.astype(np.float32) - dark_signal
+    dark_saturated = None
     if saturated is not None and signal.dtype == np.float32:
-        signal[saturated] = saturation_level  # a white core reads as the brightest part of the trace
+        # A white core reads as the brightest part of the trace; after dark subtraction, as what
+        # the laser added at least: a glint just below the clip level that noise pushes over it
+        # in one frame is not a spot at full scale.
+        signal[saturated] = (saturation_level if dark is None
+                             else saturation_level - np.maximum(dark_signal[saturated], 0.0))
+        if dark is not None:
+            dark_channel = _laser_channel(dark, color)
+            if dark_channel.max() >= saturation_level:
+                # clipped without the laser: nothing can be measured there (a saturated glint)
+                dark_saturated = dark_channel >= saturation_level
+                signal[dark_saturated] = 0.0
+    model = None
     if noise_sigma is None:
-        noise_sigma, noise = estimate_noise(signal, 1.0 if color == "grey" or image.ndim == 2 else 0.5,
-                                            local=True)
+        rows, high_pass = _high_pass_bands(signal)
+        noise_sigma, noise = _noise_from_bands(rows, high_pass, signal.shape,
+                                               1.0 if color == "grey" or image.ndim == 2 else 0.5, local=True)
+        if dark is not None:
+            invalid = saturated
+            if dark_saturated is not None:
+                invalid = dark_saturated if invalid is None else invalid | dark_saturated
+            model = fit_noise_model(rows, high_pass, dark, color, invalid)
     elif not (np.isfinite(noise_sigma) and noise_sigma > 0):
         raise InputError(f"noise_sigma must be a positive number of DN, got {noise_sigma}")
     else:
         noise = np.full(_cells_shape(signal.shape, NOISE_CELL), noise_sigma, np.float32)
-    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background_cells(signal))
+    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background_cells(signal), model)
 
 
 def check_frame(image, name: str) -> None:
@@ -245,6 +334,11 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
         Only when ``local``.
     """
     rows, high_pass = _high_pass_bands(signal)
+    return _noise_from_bands(rows, high_pass, signal.shape, step, local)
+
+
+def _noise_from_bands(rows: np.ndarray, high_pass: np.ndarray, shape, step: float, local: bool):
+    """:func:`estimate_noise` from the high-pass bands."""
     magnitude = np.abs(high_pass)  # integer for integer data: exact, and a cheap histogram
     if magnitude.dtype.kind == "i" and step == 1.0:
         bins = magnitude.ravel()
@@ -260,7 +354,99 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
     sigma = max(float(_MAD_TO_SIGMA * median_abs / np.sqrt(72.0)), QUANTIZATION_SIGMA)
     if not local:
         return sigma
-    return sigma, _noise_cells(rows, magnitude, signal.shape, sigma)
+    return sigma, _noise_cells(rows, magnitude, shape, sigma)
+
+
+def fit_noise_model(rows: np.ndarray, high_pass: np.ndarray, dark: np.ndarray, color: str,
+                    invalid: np.ndarray | None = None) -> NoiseModel | None:
+    """Photon transfer from one frame: the per-pixel noise of ``frame − dark`` against the dark's level.
+
+    The high-pass ``h = 9·x − (3×3 box sum)`` of the difference (see :func:`estimate_noise`) has
+    variance ``64 v(centre) + Σ v(8 neighbours)``, about ``72 · v(L)`` for the variance
+    ``v(L) = offset + slope · L`` of :class:`NoiseModel`, ``L`` the local level of the dark frame.
+    ``L`` is taken on the ring of 16 pixels around the 3 × 3: a level that includes the dark's own
+    noise in ``h`` (its 3 × 3 mean) would sort the samples by that noise, and on a flat 8-bit
+    background, where the level is a few integers, the bright samples would be those of bright
+    noise. ``h² / 72`` is regressed on ``L`` sample by sample, weighted by ``1 / v²`` (the variance
+    of a variance estimate), ordinary least squares first, then ``_PTC_ITERATIONS`` times with
+    ``h²`` clipped at ``_PTC_CLIP`` σ of the current model and the clipped mean's expectation
+    divided out: the laser trace, a few samples far above their level's noise, hardly moves it,
+    and a few bright samples (one glint in a dark scene) still weigh in by their leverage, which
+    bins of equal count would average away. The mean square is right for any distribution
+    (rounding makes 8-bit noise far from Gaussian), unlike the mean of ``|h|``. A negative slope is
+    set to 0.
+
+    Parameters
+    ----------
+    rows : (nb,) int array
+        Centre rows of the high-pass bands of the signal.
+    high_pass : (nb, W - 2) array, DN
+        The high-pass of the dark-subtracted signal on those bands.
+    dark : (H, W) or (H, W, 3) uint8 or uint16 array
+        The raw laser-off frame (same region as the signal).
+    color : str
+        Laser colour (it fixes the channel weights of a colour frame).
+    invalid : (H, W) bool array, optional
+        Pixels to leave out (saturated in the frame or the dark): samples whose 3 × 3 holds one.
+
+    Returns
+    -------
+    NoiseModel or None
+        None when fewer than ``_PTC_MIN_SAMPLES`` samples are usable (a frame of a few rows).
+    """
+    stride = -(-high_pass.size // _PTC_MAX_SAMPLES)  # every band up to _PTC_MAX_SAMPLES samples
+    rows, high_pass = rows[::stride], high_pass[::stride]
+    weights = None if dark.ndim == 2 else _CHANNEL_WEIGHTS2[color]
+    h = dark.shape[0]
+    level = dark[np.clip(rows[:, None] + np.arange(-2, 3), 0, h - 1)].astype(np.float32)  # (nb, 5, W[, 3])
+    if weights is not None:
+        level = level @ np.asarray(weights, np.float32)
+    col5 = level.sum(axis=1)
+    col3 = col5 - level[:, 0] - level[:, 4]
+    box3 = col3[:, 1:-3] + col3[:, 2:-2] + col3[:, 3:-1]
+    box5 = col5[:, :-4] + col5[:, 1:-3] + col5[:, 2:-2] + col5[:, 3:-1] + col5[:, 4:]
+    x = ((box5 - box3) / 16.0).astype(np.float64)  # the ring around each 3 x 3, columns 2 .. W-3
+    y = np.square(high_pass[:, 1:-1], dtype=np.float64) / 72.0
+    if invalid is not None:
+        bad = invalid[rows - 1] | invalid[rows] | invalid[rows + 1]
+        bad = (bad[:, 1:-3] | bad[:, 2:-2] | bad[:, 3:-1])
+        x, y = x[~bad], y[~bad]
+    x, y = x.ravel(), y.ravel()
+    if x.size < _PTC_MIN_SAMPLES:
+        return None
+    line = _weighted_line(x, y, np.ones_like(x))
+    floor = QUANTIZATION_SIGMA**2
+    for _ in range(_PTC_ITERATIONS):
+        var = np.maximum(line[0] + line[1] * (x - line[2]), floor)
+        clipped = np.minimum(y, _PTC_CLIP**2 * var) / _clipped_square()
+        line = _weighted_line(x, clipped, 1.0 / var**2)
+    value, slope, pivot, spread = line
+    # Few bright samples (one glint in a dark frame) leave the slope uncertain: take its upper
+    # bound, so that the threshold errs on the side of no false candidates where it is unsure.
+    # h²/72 has variance 2 v², and the weights are 1/v²: var(slope) = 2 / Σ w (x − x̄)².
+    slope += _PTC_SLOPE_MARGIN * np.sqrt(2.0 / spread) if spread > 0 else 0.0
+    return NoiseModel(dark, weights, float(value - slope * pivot), float(slope))
+
+
+def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float]:
+    """Weighted least-squares line ``y ≈ value + slope · (x − pivot)``, ``pivot`` the weighted mean
+    of ``x`` and ``slope ≥ 0``: returns ``(value, slope, pivot, Σ w (x − pivot)²)``."""
+    w_sum = float(w.sum())
+    pivot = float(np.dot(w, x)) / w_sum
+    value = float(np.dot(w, y)) / w_sum
+    wdx = w * (x - pivot)
+    spread = float(np.dot(wdx, x - pivot))
+    slope = max(float(np.dot(wdx, y)) / spread, 0.0) if spread > 0 else 0.0
+    return value, slope, pivot, spread
+
+
+@functools.lru_cache(maxsize=1)
+def _clipped_square() -> float:
+    """E min(z², c²) for a unit Gaussian z, c = ``_PTC_CLIP``."""
+    from scipy.special import erf, erfc
+
+    c = _PTC_CLIP
+    return float(erf(c / np.sqrt(2)) - c * np.sqrt(2 / np.pi) * np.exp(-c * c / 2) + c * c * erfc(c / np.sqrt(2)))
 
 
 def _noise_cells(rows: np.ndarray, magnitude: np.ndarray, shape, sigma: float) -> np.ndarray:
