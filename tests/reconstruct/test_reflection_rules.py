@@ -103,3 +103,30 @@ def test_fixed_features_need_the_minimum_number_of_other_frames():
     same_frame = fixed_features(uv[:2], camera[:2], np.zeros(2, np.int64), 1.5, 1)
     other_cam = fixed_features(uv[:2], np.array([0, 1]), np.array([0, 1]), 1.5, 1)
     assert not same_frame.any() and not other_cam.any()
+
+
+def _raster(rng, pitch_px, n_u, n_v, origin=(300.0, 200.0)):
+    """One spot per frame on a raster of ``pitch_px`` in the image (a fine scan), detection noise 0.05 px."""
+    gv, gu = np.meshgrid(np.arange(n_v), np.arange(n_u), indexing="ij")
+    uv = np.c_[gu.ravel(), gv.ravel()] * pitch_px + origin
+    return uv + rng.normal(0.0, 0.05, uv.shape)
+
+
+def test_a_scan_finer_than_the_radius_is_not_a_fixed_feature_but_a_glint_is():
+    # 0.2 mm pitch at 1 m is ~0.3 px: every spot has a dozen other frames' spots within 1.5 px,
+    # which a count alone would call a fixed feature. A glint is a spike: its recurrences sit at
+    # one place (a faint one scatters by its centre sigma, up to 1 px), not spread like the scan's.
+    rng = np.random.default_rng(44)
+    for uv in (_raster(rng, 0.3, 60, 40), _raster(rng, 0.2, 400, 1)):  # a raster, one scan line
+        n = len(uv)
+        glint = np.array([420.0, 260.0]) + rng.normal(0.0, 0.3, (12, 2))
+        wander = np.array([460.0, 280.0]) + rng.normal(0.0, 0.8, (12, 2))  # a faint one: sigma ~1 px
+        frames = np.r_[np.arange(n), rng.choice(n, 12, replace=False), rng.choice(n, 12, replace=False)]
+        all_uv = np.vstack([uv, glint, wander])
+        static = fixed_features(all_uv, np.zeros(len(all_uv), np.int64), frames, 1.5, STATIC_MIN_FRAMES)
+        assert not static[:n].any()
+        assert static[n : n + 12].all()
+        assert static[n + 12 :].sum() >= 11  # a centre ~2.5 sigma out can fall outside both scales
+        # a count of recurrences within the radius alone marks the scan
+        near = np.hypot(*(uv[:, None, :] - uv[None, :, :]).transpose(2, 0, 1)) < 1.5
+        assert np.median(near.sum(axis=1) - 1) > 2 * STATIC_MIN_FRAMES

@@ -15,14 +15,24 @@ from scanrig.io.session import natural_key
 #: than a spot and two reflections; the hypothesis count grows as (K + 1) ** n_cams.
 MAX_CANDIDATES = 4
 #: A candidate is a *fixed feature* (a glint of room light on polished metal, a hot pixel), not
-#: laser light, when its camera has a candidate within ``STATIC_RADIUS_PX`` of it in at least
-#: ``STATIC_MIN_FRAMES`` other frames: the spot moves with the beam, so it does not come back to
-#: the same pixel frame after frame. The radius is ~3 sigma of the faint candidates such features
-#: make (their centre sigma is 0.3-1 px); a re-scan of one surface point from several beams would
-#: recur too, hence more than a couple of frames. 0 disables the test.
+#: laser light, when candidates of at least ``STATIC_MIN_FRAMES`` other frames of its camera lie
+#: within ``STATIC_RADIUS_PX`` of it and the ring out to ``STATIC_RING_FACTOR`` times that radius
+#: holds at most ``STATIC_RING_FRACTION`` times as many: a spike of recurrences at one place. The
+#: spot moves with the beam, so it does not come back to the same pixel frame after frame; a
+#: scan at a pitch finer than the radius does put other frames' spots inside it, but then the ring
+#: holds more (twice as many along a scan line, eight times over a raster), whatever the pitch.
+#: The test runs at the radius and at twice it, so that a glint wandering by a few pixels is
+#: still one spike. The radius is ~3 sigma of the faint candidates such features make (0.3-1 px);
+#: a re-scan of one surface point from several beams would recur too, hence more than a couple
+#: of frames. ``STATIC_MIN_FRAMES = 0`` disables the test. Since the detector models each
+#: pixel's noise after dark subtraction, glints rarely reach this test (none in the shiny
+#: sessions); it stays for scans without a dark frame.
 STATIC_RADIUS_PX = 1.5
 STATIC_MIN_FRAMES = 3
-
+STATIC_RING_FACTOR = 3.0
+STATIC_RING_FRACTION = 0.5
+#: Frame index scale that puts candidates of different frames far apart in (u, v, frame) space.
+_FRAME_APART_PX = 1e6
 
 @dataclass(frozen=True)
 class Candidates:
@@ -133,7 +143,12 @@ def spot_candidates(table: pa.Table, cameras: list[str], frames: list[str],
 
 def fixed_features(uv: np.ndarray, camera: np.ndarray, frame: np.ndarray, radius_px: float,
                    min_frames: int) -> np.ndarray:
-    """Which candidates recur at the same pixel of their camera in ``min_frames`` other frames.
+    """Which candidates are a spike of recurrences at one pixel of their camera (see ``STATIC_RADIUS_PX``).
+
+    At each scale ``r`` of ``radius_px`` and ``2 · radius_px``: ``n`` candidates of other frames
+    within ``r``, ``m`` within ``STATIC_RING_FACTOR · r``; a candidate is fixed when, at either
+    scale, ``n ≥ min_frames`` and ``m − n ≤ STATIC_RING_FRACTION · n``. A point-like feature has
+    ``m ≈ n``; a uniform scan line ``m ≈ 3 n`` and a raster ``m ≈ 9 n``, at any pitch.
 
     Parameters
     ----------
@@ -142,9 +157,10 @@ def fixed_features(uv: np.ndarray, camera: np.ndarray, frame: np.ndarray, radius
     camera, frame : ndarray of shape (N,), int
         Camera and frame index of each candidate.
     radius_px : float
-        Distance within which two candidates are at the same place.
+        The smaller scale, pixels.
     min_frames : int
-        Number of other frames (distinct) with a candidate there.
+        Candidates of other frames needed within the radius (a frame's own candidates are at
+        least the detector's separation, 3 px, apart: within the radius a frame counts once).
 
     Returns
     -------
@@ -153,14 +169,25 @@ def fixed_features(uv: np.ndarray, camera: np.ndarray, frame: np.ndarray, radius
     from scipy.spatial import cKDTree
 
     out = np.zeros(len(uv), bool)
+    if min_frames <= 0:
+        return out
     for cam in np.unique(camera):
         rows = np.flatnonzero(camera == cam)
-        pairs = cKDTree(uv[rows]).query_pairs(radius_px, output_type="ndarray")
-        if pairs.size == 0:
-            continue
-        i, j = rows[pairs[:, 0]], rows[pairs[:, 1]]
-        other = frame[i] != frame[j]
-        both = np.unique(np.r_[np.c_[i[other], frame[j[other]]], np.c_[j[other], frame[i[other]]]], axis=0)
-        n_other = np.bincount(both[:, 0], minlength=len(uv)) if both.size else np.zeros(len(uv), np.int64)
-        out[rows] = n_other[rows] >= min_frames
+        points = uv[rows].astype(float)
+        # the same frame's candidates (itself included) are no recurrence: counted in (u, v, frame)
+        spaced = np.c_[points, frame[rows] * _FRAME_APART_PX]
+        tree, own = cKDTree(points), cKDTree(spaced)
+
+        def others(r, idx):
+            return (tree.query_ball_point(points[idx], r, return_length=True)
+                    - own.query_ball_point(spaced[idx], r, return_length=True))
+
+        everyone = np.arange(rows.size)
+        for scale in (radius_px, 2.0 * radius_px):
+            near = others(scale, everyone)
+            idx = np.flatnonzero(near >= min_frames)
+            if idx.size == 0:
+                continue
+            ring = others(STATIC_RING_FACTOR * scale, idx) - near[idx]
+            out[rows[idx[ring <= STATIC_RING_FRACTION * near[idx]]]] = True
     return out

@@ -11,9 +11,9 @@ most views wins, then the lowest χ²; views that disagree are thereby dropped. 
 consistent hypothesis gives a point that differs beyond the uncertainty of both, and either has
 as many views or uses none of the winner's candidates (a second lit point, such as a secondary
 reflection on a matte surface, seen consistently by two or more cameras), the frame is ambiguous
-and flagged instead of guessed. Candidates found at the same pixel frame after frame (fixed
-features such as glints of room light on polished metal, see
-:data:`~scanrig.reconstruct.candidates.STATIC_RADIUS_PX`) are never matched. The winners are
+and flagged instead of guessed. Candidates that recur at one pixel frame after frame, more
+densely than the scan around them (fixed features such as glints of room light on polished
+metal, see :data:`~scanrig.reconstruct.candidates.STATIC_RADIUS_PX`), are never matched. The winners are
 refined by Gauss–Newton (:func:`scanrig.triangulate`).
 
 This is aniposelib's ``triangulate_possible`` made statistical (χ² gate instead of a pixel
