@@ -13,8 +13,10 @@ from enum import IntFlag
 class Flag(IntFlag):
     """Per-point flags (bit values are part of the ``points.ply`` contract)."""
 
-    #: Another combination of candidates, with as many agreeing views, gives a different point:
-    #: the data cannot decide. Left out of ``points.ply`` unless ``keep_ambiguous``.
+    #: Another consistent combination of candidates gives a point beyond the uncertainty of both,
+    #: and it has as many agreeing views or shares no candidate with the winner (a second lit
+    #: point, such as a reflection on a matte surface): the data cannot decide. Left out of
+    #: ``points.ply`` unless ``keep_ambiguous``.
     AMBIGUOUS = 1
     #: A camera that had candidates in this frame disagreed with the others and was dropped.
     DROPPED_VIEW = 2
