@@ -65,16 +65,18 @@ class FitSettings:
         :mod:`scanrig.surface.local_start`).
     start_epochs : int
         Epochs of weighted least squares on the start's good points before the Hampel loss.
-    epochs : int
-        Full-batch epochs of back-propagation on the loss.
+    robust_epochs : int
+        Full-batch epochs of back-propagation on the Hampel loss (``"hampel"``).
     update_every : int
         Epochs between updates of the noise scale and the cut-offs.
     final_irls : int
         Iteratively reweighted least-squares steps of the output layer after the last epoch.
-    refit_epochs : int
-        Epochs of the reweighting step (``"hampel"`` only; 0 skips it): the final robust
-        weights frozen, the networks retrained from their initial hidden layers by weighted
-        least squares.
+    epochs : int
+        Full-batch epochs of least-squares training: the baselines' whole training (``"mse"``;
+        ``"huber"`` on its loss) and the reweighting step of ``"hampel"``.
+    refit : bool
+        Reweighting step (``"hampel"`` only): the final robust weights frozen, the networks
+        retrained from their initial hidden layers by weighted least squares for ``epochs``.
     learning_rate : float
         Adam step at the start; it decays by cosine to ``learning_rate / 20``.
     constants : HampelConstants
@@ -97,10 +99,11 @@ class FitSettings:
     n_folds: int = 2
     start_neighbours: int = 24
     start_epochs: int = 100
-    epochs: int = 300
+    robust_epochs: int = 300
     update_every: int = 40
     final_irls: int = 5
-    refit_epochs: int = 300
+    epochs: int = 300
+    refit: bool = True
     learning_rate: float = 0.01
     constants: HampelConstants = field(default_factory=HampelConstants)
     scale_cut: float = 2.5
@@ -113,8 +116,10 @@ class FitSettings:
             raise InputError(f"loss must be one of {LOSSES}, got {self.loss!r}")
         if self.n_folds < 2:
             raise InputError(f"n_folds must be >= 2, got {self.n_folds}")
-        if min(self.epochs, self.update_every, self.final_irls) < 1:
-            raise InputError("epochs, update_every and final_irls must be >= 1")
+        if min(self.epochs, self.robust_epochs, self.update_every, self.final_irls) < 1:
+            raise InputError("epochs, robust_epochs, update_every and final_irls must be >= 1")
+        if self.start_epochs < 0:
+            raise InputError(f"start_epochs must be >= 0, got {self.start_epochs}")
 
 
 @dataclass
@@ -252,8 +257,9 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     t = torch.as_tensor(z, dtype=torch.float32, device=device)[:, None].expand(-1, k, -1).reshape(-1, n_max)
     m = torch.as_tensor(copy_mask.reshape(-1, n_max), device=device)
 
+    n_loop = settings.robust_epochs if settings.loss == "hampel" else settings.epochs
     opt = torch.optim.Adam(nets.hidden_parameters(), lr=settings.learning_rate)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=settings.epochs,
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=n_loop,
                                                        eta_min=settings.learning_rate / 20)
     n_train = m.sum(dim=1).clamp(min=1)
     keep = torch.ceil((1.0 - settings.q) * n_train).long()
@@ -270,7 +276,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         weight = weight * torch.as_tensor(np.repeat(good, k, axis=0), device=device).double()
         _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.start_epochs)
     state = None
-    for epoch in range(settings.epochs):
+    for epoch in range(n_loop):
         if epoch % settings.update_every == 0:
             state = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
             history.append({"epoch": epoch, "sigma_upper": state["sigma_upper"].copy(),
@@ -293,14 +299,14 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
             weight = _irls_weight(r, m, settings.loss, state, keep)
         nets.set_output(coef)
-    if settings.loss == "hampel" and settings.refit_epochs > 0:
+    if settings.loss == "hampel" and settings.refit:
         # reweighting step: the robust weights frozen, every copy retrained from its initial
         # hidden layers by weighted least squares (what the robust fit has learnt is which
         # points to trust and how much; the trajectory of the redescending fit is forgotten)
         with torch.no_grad():
             for p, p0 in zip(nets.hidden_parameters(), initial):
                 p.copy_(p0)
-        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.refit_epochs)
+        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.epochs)
         with torch.no_grad():
             feats = nets.features(x)
             for _ in range(settings.final_irls):
@@ -310,7 +316,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             nets.set_output(coef)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
-    history.append({"epoch": settings.epochs, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
+    history.append({"epoch": n_loop, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
     with torch.no_grad():
         pred = nets(x).reshape(n_charts, k, n_max).double().cpu().numpy()
     return ChartFits(nets=nets, n_folds=settings.n_folds, z_fit=pred[:, 0],

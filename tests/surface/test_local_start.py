@@ -1,0 +1,54 @@
+"""The high-breakdown start: local trimmed planes keep clustered one-sided outliers out."""
+
+import numpy as np
+
+from scanrig.surface.local_start import local_trimmed_planes, robust_start
+
+from .conftest import SIGMA
+
+
+def clustered_outliers(rng, n_side=40, eps=0.4):
+    """Grid on a tilted plane; a fraction eps of outliers, half uniform, half in 4 blobs above.
+
+    Returns uv (N, 2), z (N,), outlier mask (N,), offset from the true plane (N,).
+    """
+    g = np.linspace(-1, 1, n_side)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    uv = np.column_stack([x, y])
+    truth = 0.3 * x - 0.2 * y
+    z = truth + rng.normal(0, SIGMA, x.size)
+    n_bad = int(eps * x.size)
+    bad = np.zeros(x.size, bool)
+    uniform = rng.choice(x.size, n_bad // 2, replace=False)
+    bad[uniform] = True
+    centres = rng.uniform(-0.7, 0.7, (4, 2))
+    near = np.argsort(np.linalg.norm(uv[:, None] - centres, axis=2), axis=0)[: n_bad // 8].ravel()
+    bad[near] = True
+    z[uniform] += rng.uniform(-0.5, 0.5, uniform.size)
+    z[near] += rng.uniform(5 * SIGMA, 0.3, near.size)
+    return uv, z, bad, z - truth
+
+
+def test_local_planes_see_the_noise_on_a_clean_plane():
+    rng = np.random.default_rng(3)
+    g = np.linspace(-1, 1, 40)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    z = 0.3 * x - 0.2 * y + rng.normal(0, SIGMA, x.size)
+    residual, scale = local_trimmed_planes(np.column_stack([x, y]), z)
+    # held-out residual of a plane from ~13 kept neighbours: sigma * sqrt(1 + ~3/13), ~1600 points
+    assert SIGMA <= np.sqrt(np.mean(residual**2)) <= 1.2 * SIGMA
+    # the trimmed scale of a neighbourhood is a noisy but consistent estimate of sigma
+    assert 0.8 * SIGMA <= np.median(scale) <= 1.25 * SIGMA
+
+
+def test_start_keeps_clustered_outliers_out_at_40_percent():
+    rng = np.random.default_rng(4)
+    uv, z, bad, offset = clustered_outliers(rng)
+    good, sigma_upper = robust_start(uv[None], z[None], np.ones((1, len(z)), bool), q=0.5, cut=4.0,
+                                     rng=np.random.default_rng(0))
+    good = good[0]
+    # the scale is the inliers' (held-out residual ~1.1 sigma), not inflated by the 40 % bad points
+    assert SIGMA <= sigma_upper[0] <= 1.5 * SIGMA
+    far = bad & (np.abs(offset) >= 5 * SIGMA)  # nearer ones are indistinguishable from noise
+    assert np.mean(good[far]) <= 0.05
+    assert np.mean(good[~bad]) >= 0.85
