@@ -1,9 +1,10 @@
 """Robust neural surface filter (Chen & Jain robust back-propagation with a bootstrap).
 
 ``filter_points`` splits a cloud into height-field charts, fits each with a small network on
-Hampel's tanh loss (trimmed warm start, held-out residual scale, bootstrap upper bound), and
-returns per-point inlier flags, robust scores, residuals and denoised positions. See
-``docs/surface-filter.md``. Importing this package imports PyTorch (the ``nn`` extra).
+Hampel's tanh loss (local trimmed start, held-out residual scale, bootstrap upper bound,
+reweighting step), and returns per-point inlier flags, robust scores, residuals and denoised
+positions. See ``docs/surface-filter.md``. Importing this package imports PyTorch (the ``nn``
+extra).
 """
 
 from scanrig.surface.filter import FilterResult, filter_points

@@ -1,15 +1,14 @@
-"""Robust training of height-field networks: trimmed warm start, then Hampel tanh loss.
+"""Robust training of height-field networks: high-breakdown start, Hampel tanh loss, reweighting.
 
 This is Chen & Jain's robust back-propagation (the output error ``z - zhat`` replaced by
 ``psi_t(z - zhat)``, with cut-offs that shrink as the noise scale becomes known), made concrete
 with the choices documented in ``docs/surface-filter.md``:
 
-1. **Warm start** (our choice): with the hidden layers at their random initial values, the
-   linear output layer is fitted by ``lad_steps`` IRLS steps on the absolute residual (the
-   conditional median, which stays on the inliers while fewer than half of the points are bad)
-   and then ``trim_steps`` concentration steps of least trimmed squares (the ``ceil((1 - q) n)``
-   smallest residuals; breakdown point q). No gradient step is taken: trimming with a flexible
-   network rewards chasing the noise of the kept points.
+1. **Robust start** (our choice, :mod:`scanrig.surface.local_start`): least-trimmed-squares
+   planes through every point's neighbours give held-out residuals, the chart's noise scale
+   (breakdown point q) and 0/1 starting weights that keep clusters of outliers out; the
+   cut-offs start at ``r`` times that scale, and the networks are first fitted for
+   ``start_epochs`` epochs by weighted least squares on the good points.
 2. **Held-out residuals** (our choice): the points of a chart are split in ``n_folds`` folds;
    besides the full network, one fold network per fold is trained on the other folds. The
    noise scale comes from the residual of each point under the fold network that never saw it,
@@ -18,8 +17,13 @@ with the choices documented in ``docs/surface-filter.md``:
    :func:`~scanrig.surface.hampel.robust_scale` gives sigma and its bootstrap upper bound
    sigma+; ``a_t = p sigma+``, ``b_t = r sigma+``, ``beta_t = gamma / sigma+``, recomputed every
    ``update_every`` epochs and never allowed to grow (monotone shrinkage).
-4. **Robust back-propagation**: ``epochs`` epochs of every layer on the Hampel tanh loss of
-   :mod:`scanrig.surface.hampel`.
+4. **Robust back-propagation**: ``robust_epochs`` epochs of every layer on the Hampel tanh loss
+   of :mod:`scanrig.surface.hampel`.
+5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen, every network
+   retrained from its initial hidden layers by weighted least squares for ``epochs`` epochs (the
+   schedule of the plain least-squares fit): the one-step reweighting of reweighted LTS, which
+   forgets the trajectory of the redescending fit and keeps what it learnt, which points to
+   trust.
 
 All charts and folds are trained at once as one batch of independent networks
 (:class:`~scanrig.surface.network.HeightFieldNets`). The hidden layers follow the gradient of the
@@ -51,11 +55,11 @@ class FitSettings:
     Attributes
     ----------
     q : float
-        Tolerated fraction of bad data in (0, 0.5]: trimming of the warm start and breakdown
-        point of the noise scale.
+        Tolerated fraction of bad data in (0, 0.5]: breakdown point of the noise scale (of the
+        start and of every update).
     loss : {"hampel", "mse", "huber"}
         ``"hampel"`` is the robust method; ``"mse"`` and ``"huber"`` are the baselines (same
-        network and epochs, no warm start).
+        network, ``epochs`` epochs, no robust start and no reweighting step).
     architecture, hidden, depth : str, int, int
         Network, see :class:`~scanrig.surface.network.HeightFieldNets`.
     n_folds : int
@@ -262,7 +266,6 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=n_loop,
                                                        eta_min=settings.learning_rate / 20)
     n_train = m.sum(dim=1).clamp(min=1)
-    keep = torch.ceil((1.0 - settings.q) * n_train).long()
     cut = np.full(n_charts, np.inf)
     weight = m.double()
     history = []
@@ -286,7 +289,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             coef = _weighted_solve(feats, t, weight)
             nets.set_output(coef)
         r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-        weight = _irls_weight(r.detach(), m, settings.loss, state, keep)
+        weight = _irls_weight(r.detach(), m, settings.loss, state)
         loss_per_copy = _robust_loss(r, m, settings.loss, state["torch"]) / n_train
         opt.zero_grad(set_to_none=True)
         loss_per_copy.sum().backward()
@@ -297,7 +300,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         for _ in range(settings.final_irls):
             coef = _weighted_solve(feats, t, weight)
             r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-            weight = _irls_weight(r, m, settings.loss, state, keep)
+            weight = _irls_weight(r, m, settings.loss, state)
         nets.set_output(coef)
     if settings.loss == "hampel" and settings.refit:
         # reweighting step: the robust weights frozen, every copy retrained from its initial
@@ -312,7 +315,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             for _ in range(settings.final_irls):
                 coef = _weighted_solve(feats, t, weight)
                 r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-                weight = _irls_weight(r, m, settings.loss, state, keep)
+                weight = _irls_weight(r, m, settings.loss, state)
             nets.set_output(coef)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
@@ -365,25 +368,11 @@ def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) 
     return torch.linalg.solve(gram, rhs)
 
 
-def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, state: dict | None,
-                 keep: torch.Tensor, lad: bool = False) -> torch.Tensor:
-    """IRLS weights ``psi(r) / r`` of the current phase: (M, n) float64.
-
-    ``lad``: ``1 / max(|r|, median |r|)`` (absolute loss, quadratic below the median residual).
-    Warm start (``state is None``): 1 for the ``keep`` smallest squared residuals of each copy,
-    else 0 (a concentration step of least trimmed squares).
-    """
+def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, state: dict) -> torch.Tensor:
+    """IRLS weights ``psi(r) / r`` of the loss at the current cut-offs: (M, n) float64."""
     r = r.double()
     if loss == "mse":
         return m.double()
-    if lad:
-        ar = r.abs()
-        floor = torch.where(m, ar, torch.full_like(ar, torch.nan)).nanmedian(dim=1).values
-        return torch.where(m, 1.0 / torch.maximum(ar, floor[:, None].clamp(min=1e-12)), torch.zeros_like(ar))
-    if state is None:
-        r2 = torch.where(m, r.square(), torch.full_like(r, torch.inf))
-        thresh = torch.sort(r2, dim=1).values.gather(1, (keep - 1).clamp(min=0)[:, None])
-        return (m & (r2 <= thresh)).double()
     cut = {key: v.double() for key, v in state["torch"].items()}
     if loss == "huber":
         w = torch.clamp(cut["huber"] / r.abs().clamp(min=1e-30), max=1.0)
