@@ -95,8 +95,9 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         Each point's own predicted standard deviation, metres (``sigma`` of ``points.ply``): an
         absolute reference for ``denoised``. A chart moves a point only if its noise scale is
         at most ``TRUST_FACTOR`` times the point's sigma and the point lies within
-        ``r * point_sigma`` of the fit (unless it is an isolated gross error); without it the
-        reference is relative (the median chart), which a cloud of one chart cannot use.
+        ``r * point_sigma`` of the fit, so no point moves by more than that; without it the
+        reference is relative (the median chart), which a cloud of one chart cannot use, and
+        an isolated gross error is projected on the fit.
 
     Returns
     -------
@@ -174,7 +175,9 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     chart at a point that is beyond its rejection point ``r sigma_c`` yet consistent with its
     neighbours (structure the fit smooths away). With ``point_sigma`` the chart must also be
     within ``TRUST_FACTOR`` of the point's own sigma and the point within ``r`` of its own
-    sigma of the fit. A point that no such chart covers keeps its measured position.
+    sigma of the fit, always: a point is then never moved by more than ``r`` of its own sigmas
+    (gross errors are flagged, not projected). A point that no such chart covers keeps its
+    measured position.
     """
     n = len(points)
     r = settings.constants.r
@@ -208,12 +211,17 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
             # neighbours lies on structure the fit smooths away (an edge, a step): this chart must
             # not move it; an isolated gross error is still projected
             limit = np.full(m, r * sigma_c[c])
-            if point_sigma is not None:  # absolute reference: the points' own predicted sigma
+            fits_point = np.abs(local[:, 2] - height) <= limit
+            if point_sigma is None:
+                fits_point |= np.abs(_local_residual(local)) > limit
+            else:  # absolute reference: the points' own predicted sigma
                 own_sigma = np.maximum(point_sigma[chart.members], sigma_floor)
                 agree &= sigma_fit[c] <= TRUST_FACTOR * own_sigma
-                limit = np.minimum(limit, r * own_sigma)
-            fits_point = ((np.abs(local[:, 2] - height) <= limit)
-                          | (np.abs(_local_residual(local)) > limit))
+                # and no "isolated gross error" projection: a point r of its own sigmas off a fit
+                # that is itself within noise is a disagreement of two measurements, and in a
+                # sparse cloud its neighbours' plane says nothing (the spot demo's block top,
+                # 80 mm up, was projected onto the floor's fit); it is flagged, not moved
+                fits_point &= np.abs(local[:, 2] - height) <= r * own_sigma
             wd = w * agree * fits_point * (sigma_ref / sigma_fit[c]) ** 2
             np.add.at(acc_d, chart.members, np.column_stack([wd, wd[:, None] * projected]))
     weight = acc[:, 0]
