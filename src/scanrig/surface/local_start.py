@@ -55,13 +55,40 @@ def local_trimmed_planes(uv: np.ndarray, z: np.ndarray, *, k: int = 24, keep: fl
     scale : (m,) float array
         Scale of the kept half of the neighbours' residuals (Gaussian-consistent).
     """
-    m = len(z)
-    k = max(3, min(k, m - 1))
+    k = max(3, min(k, len(z) - 1))
     _, idx = cKDTree(uv).query(uv, k=k + 1)
     nb = idx[:, 1:]
-    du = uv[nb] - uv[:, None, :]  # (m, k, 2)
+    coef, scale = trimmed_planes(uv[nb] - uv[:, None, :], z[nb], keep=keep, steps=steps)
+    return z - coef[:, 0], scale
+
+
+def trimmed_planes(du: np.ndarray, zn: np.ndarray, *, keep: float = 0.5,
+                   steps: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Least-trimmed-squares planes ``h = c0 + c1 du + c2 dv`` of many small point sets at once.
+
+    Concentration steps from the sets' median heights: each step refits by least squares the
+    ``ceil(keep * k)`` points of smallest absolute residual (breakdown point ``1 - keep``).
+
+    Parameters
+    ----------
+    du : (m, k, 2) float array
+        In-plane offsets of each set's points from the point where ``c0`` is wanted.
+    zn : (m, k) float array
+        Their heights.
+    keep : float
+        Fraction of each set kept.
+    steps : int
+        Concentration steps.
+
+    Returns
+    -------
+    coef : (m, 3) float array
+        ``(c0, c1, c2)``: height at zero offset and slopes.
+    scale : (m,) float array
+        Scale of the kept residuals (Gaussian-consistent).
+    """
+    m, k = zn.shape
     design = np.concatenate([np.ones((m, k, 1)), du], axis=2)
-    zn = z[nb]
     h = min(k, max(4, int(np.ceil(keep * k))))
     coef = np.zeros((m, 3))
     coef[:, 0] = np.median(zn, axis=1)
@@ -77,7 +104,7 @@ def local_trimmed_planes(uv: np.ndarray, z: np.ndarray, *, k: int = 24, keep: fl
     r2 = np.sort(r * r, axis=1)[:, :h]
     q_local = 1.0 - h / k
     scale = np.sqrt(r2.mean(axis=1) / (trimmed_consistency(min(max(q_local, 1e-3), 0.5)) * (1.0 - 3.0 / h)))
-    return z - coef[:, 0], scale
+    return coef, scale
 
 
 def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, cut: float,
