@@ -295,13 +295,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         loss_per_copy.sum().backward()
         opt.step()
         sched.step()
-    with torch.no_grad():  # output layer at its IRLS optimum for the final hidden layers
-        feats = nets.features(x)
-        for _ in range(settings.final_irls):
-            coef = _weighted_solve(feats, t, weight)
-            r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-            weight = _irls_weight(r, m, settings.loss, state)
-        nets.set_output(coef)
+    weight = _output_layer_irls(nets, x, t, weight, m, settings, state)
     if settings.loss == "hampel" and settings.refit:
         # reweighting step: the robust weights frozen, every copy retrained from its initial
         # hidden layers by weighted least squares (what the robust fit has learnt is which
@@ -310,13 +304,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             for p, p0 in zip(nets.hidden_parameters(), initial):
                 p.copy_(p0)
         _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.epochs)
-        with torch.no_grad():
-            feats = nets.features(x)
-            for _ in range(settings.final_irls):
-                coef = _weighted_solve(feats, t, weight)
-                r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-                weight = _irls_weight(r, m, settings.loss, state)
-            nets.set_output(coef)
+        weight = _output_layer_irls(nets, x, t, weight, m, settings, state)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
     history.append({"epoch": n_loop, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
@@ -351,6 +339,23 @@ def _weighted_least_squares(nets: HeightFieldNets, x: torch.Tensor, t: torch.Ten
         loss_per_copy.sum().backward()
         opt.step()
         sched.step()
+
+
+def _output_layer_irls(nets, x: torch.Tensor, t: torch.Tensor, weight: torch.Tensor, m: torch.Tensor,
+                       settings: FitSettings, state: dict) -> torch.Tensor:
+    """Set the output layer to its IRLS optimum for the current hidden layers.
+
+    ``settings.final_irls`` steps of weighted least squares, the weights ``psi(r) / r`` of the
+    loss at the current cut-offs re-evaluated after each; returns the last weights, (M, n).
+    """
+    with torch.no_grad():
+        feats = nets.features(x)
+        for _ in range(settings.final_irls):
+            coef = _weighted_solve(feats, t, weight)
+            r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
+            weight = _irls_weight(r, m, settings.loss, state)
+        nets.set_output(coef)
+    return weight
 
 
 def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
