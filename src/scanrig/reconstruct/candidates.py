@@ -34,6 +34,7 @@ STATIC_RING_FRACTION = 0.5
 #: Frame index scale that puts candidates of different frames far apart in (u, v, frame) space.
 _FRAME_APART_PX = 1e6
 
+
 @dataclass(frozen=True)
 class Candidates:
     """Spot candidates of every frame and camera, padded to ``K``.
