@@ -25,3 +25,18 @@ def test_sphere_is_split_into_height_field_charts_that_partition_it():
         assert np.all(np.abs(v[c.members] @ c.rotation[2]) > np.cos(np.deg2rad(65)))
         assert np.all(v[c.members] @ c.rotation[2] * np.sign(v[c.core] @ c.rotation[2]).mean() > 0)
         np.testing.assert_allclose(c.rotation @ c.rotation.T, np.eye(3), atol=1e-12)
+
+
+def test_a_far_gross_error_does_not_widen_a_chart():
+    # a flat patch with one point 0.5 m above it: the reach is the core's box in the chart
+    # plane, so the chart's members stay its core plus the overlap (a 3D ball around the
+    # origin took its radius from the gross error and held the whole neighbourhood)
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.5, 0.5, (4000, 2))
+    points = np.column_stack([xy, rng.normal(0, 1e-3, len(xy))])
+    points[0] = [0.0, 0.0, 0.5]
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    charts = split_charts(points, normals, max_points=1000, q=0.1)
+    for c in charts:
+        assert c.radius <= np.sqrt(0.5) + 1e-9
+        assert len(c.members) <= 1.6 * len(c.core)  # (1 + 0.25)^2 = 1.56 for a square box

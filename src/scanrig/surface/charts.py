@@ -1,11 +1,17 @@
 """Split a point cloud into charts: pieces that are height fields in their own frames.
 
-A chart has an origin, an orthonormal frame ``(u, v, n)`` (rows of ``rotation``) and a radius.
-Its *core* points partition the cloud; its *members* are the core plus the neighbouring points
-within an overlap margin whose normals face the same way and whose heights lie in the core's
-height range (widened by the margin; this keeps the far side of a thin or closed object out),
-so fits overlap at chart borders and
-can be blended with a smooth partition of unity (:func:`blend_weights`).
+A chart has an origin, an orthonormal frame ``(u, v, n)`` (rows of ``rotation``), a radius and
+a *reach*: the bounding box of its core in the ``(u, v)`` plane widened by an overlap margin on
+every side, and a height window. Its *core* points partition the cloud; its *members* are the
+core plus the neighbouring points in the reach whose normals face the same way and whose heights
+lie in the window (the core's height range widened by the margin; this keeps the far side of a
+thin or closed object out), so fits overlap at chart borders and can be blended with a smooth
+partition of unity (:func:`blend_weights`).
+
+The reach is a box in the chart plane, not a ball in 3D (our choice): a gross error far above the
+surface set the ball's radius, and a ball around an elongated core holds several times its
+area; the members of such charts grew to 4-8x their cores (26 000 members for 3000 core points on
+a cloud with 10 % uniform outliers), and the members are what the networks are trained on.
 
 Splitting is recursive (our choice): a set of points becomes a chart when it has at most
 ``max_points`` points and the normals of all but a fraction ``q`` of them lie within
@@ -31,7 +37,14 @@ class Chart:
     rotation : (3, 3) float array
         Rows are the chart axes ``u, v, n`` in the cloud's frame: ``p_chart = (p - origin) @ rotation.T``.
     radius : float
-        Largest distance from the origin to a core point, metres.
+        Largest distance from the origin to a core point in the ``(u, v)`` plane, metres (the
+        unit of the chart's normalised coordinates).
+    reach : (2, 2) float array
+        ``[[u_low, u_high], [v_low, v_high]]``: the box of the members in the chart plane,
+        metres.
+    height_window : (2,) float array
+        Lowest and highest height of a member (the core's ``q/2`` and ``1 - q/2`` height
+        quantiles widened by the overlap margin), metres.
     core : (n_core,) int array
         Indices of the points this chart owns.
     members : (n_members,) int array
@@ -41,6 +54,8 @@ class Chart:
     origin: np.ndarray
     rotation: np.ndarray
     radius: float
+    reach: np.ndarray
+    height_window: np.ndarray
     core: np.ndarray
     members: np.ndarray
 
@@ -51,6 +66,11 @@ class Chart:
     def from_chart(self, uvh: np.ndarray) -> np.ndarray:
         """``(..., 3)`` ``(u, v, height)`` in metres -> points in the cloud frame."""
         return uvh @ self.rotation + self.origin
+
+    def in_window(self, points: np.ndarray) -> np.ndarray:
+        """``(N,)`` bool: which points' heights lie in the chart's height window."""
+        height = (points - self.origin) @ self.rotation[2]
+        return (height >= self.height_window[0]) & (height <= self.height_window[1])
 
 
 def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -94,7 +114,8 @@ def split_charts(points: np.ndarray, normals: np.ndarray, *, max_points: int, q:
     max_angle : float
         Largest angle between a point normal and its chart normal, radians.
     overlap : float
-        Members reach ``(1 + overlap) * radius`` from the chart origin.
+        The reach is the core's box in the chart plane widened by ``overlap`` times its half
+        extent on every side; heights by ``overlap`` times the larger half extent.
     min_points : int
         Sets this small are never split further.
 
@@ -123,23 +144,32 @@ def split_charts(points: np.ndarray, normals: np.ndarray, *, max_points: int, q:
     tree = cKDTree(points)
     charts = []
     for core, origin, rotation in cores:
-        radius = float(np.max(np.linalg.norm(points[core] - origin, axis=1)))
-        near = np.asarray(tree.query_ball_point(origin, (1.0 + overlap) * radius), dtype=int)
-        height = (points[near] - origin) @ rotation[2]
-        low, high = np.quantile((points[core] - origin) @ rotation[2], [q / 2, 1 - q / 2])
-        margin = overlap * radius
-        near = near[(np.abs(normals[near] @ rotation[2]) >= cos_max)
-                    & (height >= low - margin) & (height <= high + margin)]
-        members = np.union1d(core, near)
-        charts.append(Chart(origin, rotation, radius, core, members))
+        local = (points[core] - origin) @ rotation.T
+        radius = float(np.max(np.linalg.norm(local[:, :2], axis=1)))
+        low, high = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
+        widen = overlap * (high - low) / 2 + 1e-9 * max(radius, 1e-300)
+        reach = np.column_stack([low - widen, high + widen])
+        h_low, h_high = np.quantile(local[:, 2], [q / 2, 1 - q / 2])
+        window = np.array([h_low, h_high]) + np.array([-1.0, 1.0]) * widen.max()
+        corner = np.abs(reach).max(axis=1)
+        near = np.asarray(tree.query_ball_point(origin, np.linalg.norm([*corner, np.abs(window).max()])),
+                          dtype=int)
+        near_local = (points[near] - origin) @ rotation.T
+        keep = (np.all((near_local[:, :2] >= reach[:, 0]) & (near_local[:, :2] <= reach[:, 1]), axis=1)
+                & (np.abs(normals[near] @ rotation[2]) >= cos_max)
+                & (near_local[:, 2] >= window[0]) & (near_local[:, 2] <= window[1]))
+        members = np.union1d(core, near[keep])
+        charts.append(Chart(origin, rotation, radius, reach, window, core, members))
     return charts
 
 
-def blend_weights(chart: Chart, points: np.ndarray, overlap: float = 0.25) -> np.ndarray:
+def blend_weights(chart: Chart, points: np.ndarray) -> np.ndarray:
     """Partition-of-unity weights of a chart at its member points (before normalisation).
 
-    ``w = (1 - (d / R)^2)^2`` with ``d`` the distance to the chart origin and
-    ``R = (1 + overlap) * radius + tiny``: positive at every core point, zero at the rim.
+    The product over the chart plane's two axes of ``(1 - (d / R)^2)^2``, with ``d`` the
+    distance from the middle of the chart's reach along the axis and ``R`` its half width:
+    positive inside the reach (so at every core point), zero on and beyond its rim. Heights
+    are not looked at (see :meth:`Chart.in_window`).
 
     Parameters
     ----------
@@ -151,9 +181,11 @@ def blend_weights(chart: Chart, points: np.ndarray, overlap: float = 0.25) -> np
     -------
     (m,) float array
     """
-    reach = (1.0 + overlap) * chart.radius * (1.0 + 1e-9) + 1e-300
-    d = np.linalg.norm(points - chart.origin, axis=1) / reach
-    return np.clip(1.0 - d**2, 0.0, None) ** 2
+    uv = (points - chart.origin) @ chart.rotation[:2].T
+    middle = chart.reach.mean(axis=1)
+    half = np.diff(chart.reach, axis=1)[:, 0] / 2
+    d = (uv - middle) / half
+    return np.prod(np.clip(1.0 - d**2, 0.0, None) ** 2, axis=1)
 
 
 def _frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

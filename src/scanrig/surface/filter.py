@@ -5,13 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
 from scanrig.surface.charts import Chart, blend_weights, estimate_normals, split_charts
 from scanrig.surface.hampel import check_q
-from scanrig.surface.robust_fit import ChartFits, FitSettings, fit_charts
+from scanrig.surface.robust_fit import ChartFits, FitSettings, fit_charts_by_size
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
@@ -19,8 +18,6 @@ MIN_POINTS = 16  # below this a surface network (2 folds x several points) is me
 TRUST_FACTOR = 3.0
 #: Largest angle between a point's normal and the normal of a chart that may move it.
 MAX_NORMAL_ANGLE = np.deg2rad(60.0)
-#: Neighbours of the local planes that tell an isolated gross error from structure a fit smooths.
-LOCAL_NEIGHBOURS = 12
 
 
 @dataclass
@@ -96,8 +93,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         absolute reference for ``denoised``. A chart moves a point only if its noise scale is
         at most ``TRUST_FACTOR`` times the point's sigma and the point lies within
         ``r * point_sigma`` of the fit, so no point moves by more than that; without it the
-        reference is relative (the median chart), which a cloud of one chart cannot use, and
-        an isolated gross error is projected on the fit.
+        reference is relative (the median chart), which a cloud of one chart cannot use.
 
     Returns
     -------
@@ -133,27 +129,13 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
 
     normals = estimate_normals(points)
     charts = split_charts(points, normals, max_points=max_chart_points, q=q)
-    n_max = max(len(c.members) for c in charts)
-    n_charts = len(charts)
-    uv = np.zeros((n_charts, n_max, 2))
-    z = np.zeros((n_charts, n_max))
-    valid = np.zeros((n_charts, n_max), dtype=bool)
-    mask = np.zeros((n_charts, n_max), dtype=bool)
-    uv_scale = np.empty(n_charts)
-    z_scale = np.empty(n_charts)
-    for c, chart in enumerate(charts):
-        local = chart.to_chart(points[chart.members])
-        m = len(chart.members)
-        uv_scale[c] = max(chart.radius, 1e-300)
-        z_scale[c] = max(local[:, 2].std(), 1e-9 * uv_scale[c])
-        uv[c, :m] = local[:, :2] / uv_scale[c]
-        z[c, :m] = local[:, 2] / z_scale[c]
-        valid[c, :m] = True
-        mask[c, :m] = True if train_mask is None else train_mask[chart.members]
-
-    fits = fit_charts(uv, z, valid, settings=settings, rng=rng,
-                      train_mask=None if train_mask is None else mask,
-                      sigma_floor=sigma_floor / z_scale, device=device)
+    uv_scale = np.array([max(chart.radius, 1e-300) for chart in charts])
+    local = [chart.to_chart(points[chart.members]) for chart in charts]
+    z_scale = np.array([max(h[:, 2].std(), 1e-9 * s) for h, s in zip(local, uv_scale)])
+    fits = fit_charts_by_size([h[:, :2] / s for h, s in zip(local, uv_scale)],
+                              [h[:, 2] / s for h, s in zip(local, z_scale)], settings=settings, rng=rng,
+                              train_mask=None if train_mask is None else [train_mask[c.members] for c in charts],
+                              sigma_floor=sigma_floor / z_scale, device=device)
 
     return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
                           point_sigma)
@@ -172,12 +154,11 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     whose normal agrees with the point's normal (within the charts' 60 degrees; projecting a
     wall point along a floor chart's normal is meaningless), with inverse-variance weights
     ``(sigma_ref / sigma_c)^2`` so a loose fit never overrides a tight one, and leaves out a
-    chart at a point that is beyond its rejection point ``r sigma_c`` yet consistent with its
-    neighbours (structure the fit smooths away). With ``point_sigma`` the chart must also be
+    chart at a point beyond its rejection point ``r sigma_c``: a gross error, or structure the
+    fit smooths away (flagged, not projected). With ``point_sigma`` the chart must also be
     within ``TRUST_FACTOR`` of the point's own sigma and the point within ``r`` of its own
-    sigma of the fit, always: a point is then never moved by more than ``r`` of its own sigmas
-    (gross errors are flagged, not projected). A point that no such chart covers keeps its
-    measured position.
+    sigma of the fit: a point is then never moved by more than ``r`` of its own sigmas. A point
+    that no such chart covers keeps its measured position.
     """
     n = len(points)
     r = settings.constants.r
@@ -207,20 +188,13 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
         if sigma_fit[c] <= TRUST_FACTOR * sigma_ref:
             agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
-            # a point beyond the rejection point of the fit but consistent with the plane of its
-            # neighbours lies on structure the fit smooths away (an edge, a step): this chart must
-            # not move it; an isolated gross error is still projected
-            limit = np.full(m, r * sigma_c[c])
-            fits_point = np.abs(local[:, 2] - height) <= limit
-            if point_sigma is None:
-                fits_point |= np.abs(_local_residual(local)) > limit
-            else:  # absolute reference: the points' own predicted sigma
+            # a point beyond the rejection point of the fit is flagged, never moved: it is a gross
+            # error or it lies on structure the fit smooths away (an edge, a step, a corner),
+            # and moving it would make the latter worse
+            fits_point = np.abs(local[:, 2] - height) <= r * sigma_c[c]
+            if point_sigma is not None:  # absolute reference: the points' own predicted sigma
                 own_sigma = np.maximum(point_sigma[chart.members], sigma_floor)
                 agree &= sigma_fit[c] <= TRUST_FACTOR * own_sigma
-                # and no "isolated gross error" projection: a point r of its own sigmas off a fit
-                # that is itself within noise is a disagreement of two measurements, and in a
-                # sparse cloud its neighbours' plane says nothing (the spot demo's block top,
-                # 80 mm up, was projected onto the floor's fit); it is flagged, not moved
                 fits_point &= np.abs(local[:, 2] - height) <= r * own_sigma
             wd = w * agree * fits_point * (sigma_ref / sigma_fit[c]) ** 2
             np.add.at(acc_d, chart.members, np.column_stack([wd, wd[:, None] * projected]))
@@ -235,38 +209,6 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     return FilterResult(denoised=denoised, inlier=score <= r, score=score,
                         residual=out[:, 3], sigma=out[:, 5], charts=charts, fits=fits,
                         uv_scale=uv_scale, z_scale=z_scale, settings=settings)
-
-
-def _local_residual(local: np.ndarray, k: int = LOCAL_NEIGHBOURS) -> np.ndarray:
-    """Held-out residual of each point's height from a plane through its nearest neighbours.
-
-    Parameters
-    ----------
-    local : (m, 3) float array
-        ``(u, v, height)`` of a chart's members, metres.
-    k : int
-        Neighbours (excluding the point itself), clipped to ``m - 1``.
-
-    Returns
-    -------
-    (m,) float array
-        Height minus the least-squares (minimum-norm) plane ``h = a + b u + c v`` of the
-        neighbours at the point, metres. Independent of the network: large for an isolated
-        gross error, small for a point on an edge or step that its neighbours share. (Not a
-        noise estimate on stripe data: neighbours on one stripe share its offset.)
-    """
-    m = len(local)
-    k = min(k, m - 1)
-    if k < 1:
-        return np.zeros(m)
-    _, idx = cKDTree(local).query(local, k=k + 1)
-    nb = local[idx[:, 1:]]  # (m, k, 3)
-    centre = nb.mean(axis=1)
-    d = nb - centre[:, None]
-    design = d[..., :2]
-    coef = np.einsum("mij,mjk->mik", np.linalg.pinv(design, rcond=1e-6), d[..., 2:])[..., 0]  # (m, 2)
-    predicted = centre[:, 2] + np.einsum("mi,mi->m", local[:, :2] - centre[:, :2], coef)
-    return local[:, 2] - predicted
 
 
 def _resolve_device(device: str) -> str:
@@ -285,8 +227,8 @@ def _resolve_device(device: str) -> str:
 def project_on_surface(result: FilterResult, points: np.ndarray) -> np.ndarray:
     """Project arbitrary points on the fitted surface along the normals of the charts near them.
 
-    Each chart whose reach (see :func:`~scanrig.surface.charts.blend_weights`) covers a point
-    projects it along its normal; the projections are blended with the same partition of unity
+    Each chart whose reach (see :func:`~scanrig.surface.charts.blend_weights`) and height window
+    cover a point projects it along its normal; the projections are blended with the same partition of unity
     as the input points. A point outside every reach uses the chart with the nearest origin.
 
     Parameters
@@ -301,7 +243,7 @@ def project_on_surface(result: FilterResult, points: np.ndarray) -> np.ndarray:
         Points on the fitted surface, metres.
     """
     points = check_points(points, 3, "points")
-    weights = np.stack([blend_weights(c, points) for c in result.charts])  # (C, m)
+    weights = np.stack([blend_weights(c, points) * c.in_window(points) for c in result.charts])  # (C, m)
     nearest = np.argmin(np.stack([np.linalg.norm(points - c.origin, axis=1) for c in result.charts]), axis=0)
     uncovered = weights.sum(axis=0) <= 0
     weights[nearest[uncovered], np.flatnonzero(uncovered)] = 1.0

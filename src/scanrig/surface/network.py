@@ -69,6 +69,27 @@ class HeightFieldNets(torch.nn.Module):
         self.weights = torch.nn.ParameterList(weights)
         self.biases = torch.nn.ParameterList(biases)
 
+    @classmethod
+    def concatenate(cls, parts: list["HeightFieldNets"], order: torch.Tensor) -> "HeightFieldNets":
+        """One batch holding the copies of several batches of the same architecture.
+
+        Parameters
+        ----------
+        parts : list of HeightFieldNets
+            Same ``architecture``, ``hidden`` and ``depth``.
+        order : (n_models,) int tensor
+            Copy ``i`` of the result is copy ``order[i]`` of the parts' copies laid end to end.
+        """
+        first = parts[0]
+        out = cls(1, hidden=first.weights[0].shape[-1], depth=len(first.weights) - 1,
+                  architecture=first.architecture, generator=torch.Generator())
+        with torch.no_grad():
+            for mine, theirs in ((out.weights, [p.weights for p in parts]),
+                                 (out.biases, [p.biases for p in parts])):
+                for i in range(len(mine)):
+                    mine[i] = torch.nn.Parameter(torch.cat([t[i] for t in theirs])[order])
+        return out
+
     def features(self, uv: torch.Tensor) -> torch.Tensor:
         """Activations of the last hidden layer with a constant column appended.
 

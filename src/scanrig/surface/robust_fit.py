@@ -46,6 +46,7 @@ from scanrig.surface.network import HeightFieldNets
 
 LOSSES = ("hampel", "mse", "huber")
 HUBER_K = 1.345  # Huber's cut-off in units of sigma: 95 % Gaussian efficiency
+MAX_PADDING = 1.25  # largest ratio of chart sizes fitted in one batch
 
 
 @dataclass(frozen=True)
@@ -316,6 +317,86 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                      beta=final["beta"], history=history)
 
 
+def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: FitSettings,
+                       rng: np.random.Generator, train_mask: list[np.ndarray] | None = None,
+                       sigma_floor: np.ndarray | float = 0.0, device: str = "cpu",
+                       max_padding: float = MAX_PADDING) -> ChartFits:
+    """:func:`fit_charts` on charts of different sizes, grouped so that little is padding.
+
+    A batch pads every chart to its largest; a cloud's charts range from tens to thousands of
+    points (a real stripe scan: 34 to 5600), and one batch of all of them was 25-50x its points
+    in rows, nearly all padding. Charts are fitted in groups whose largest member is at most
+    ``max_padding`` times their smallest; the fits are merged in input order. Each chart's fit is
+    independent of its group (same schedule, its own weights).
+
+    Parameters
+    ----------
+    uv : list of (n_c, 2) float arrays
+        Normalised coordinates of each chart's members.
+    z : list of (n_c,) float arrays
+        Normalised heights.
+    settings, rng, sigma_floor, device
+        As in :func:`fit_charts`.
+    train_mask : list of (n_c,) bool arrays, optional
+        As in :func:`fit_charts`, per chart.
+    max_padding : float
+        Largest ratio of sizes within a group.
+
+    Returns
+    -------
+    ChartFits
+        Arrays padded to the largest chart, charts in input order.
+    """
+    sizes = np.array([len(h) for h in z])
+    floor = np.broadcast_to(np.asarray(sigma_floor, dtype=float), sizes.shape)
+    order = np.argsort(-sizes, kind="stable")
+    groups = []
+    while len(order):
+        take = np.count_nonzero(sizes[order] * max_padding >= sizes[order[0]])
+        groups.append(order[:take])
+        order = order[take:]
+    parts = []
+    for group in groups:
+        n_max = sizes[group].max()
+        uv_g = np.zeros((len(group), n_max, 2))
+        z_g = np.zeros((len(group), n_max))
+        valid = np.zeros((len(group), n_max), dtype=bool)
+        mask = None if train_mask is None else np.zeros((len(group), n_max), dtype=bool)
+        for row, c in enumerate(group):
+            uv_g[row, :sizes[c]], z_g[row, :sizes[c]], valid[row, :sizes[c]] = uv[c], z[c], True
+            if mask is not None:
+                mask[row, :sizes[c]] = train_mask[c]
+        parts.append(fit_charts(uv_g, z_g, valid, settings=settings, rng=rng, train_mask=mask,
+                                sigma_floor=floor[group], device=device))
+    return _merge_fits(parts, np.concatenate(groups), sizes.max())
+
+
+def _merge_fits(parts: list[ChartFits], charts: np.ndarray, n_max: int) -> ChartFits:
+    """Merge the fits of groups of charts; ``charts`` lists the groups' charts end to end."""
+    inverse = np.argsort(charts)
+    k = parts[0].n_folds + 1
+    copies = torch.as_tensor((inverse[:, None] * k + np.arange(k)).ravel())
+
+    def padded(name):
+        rows = [np.pad(getattr(p, name), ((0, 0), (0, n_max - getattr(p, name).shape[1])),
+                       constant_values=np.nan) for p in parts]
+        return np.concatenate(rows)[inverse]
+
+    def joined(values):
+        return np.concatenate(values)[inverse]
+
+    history = [{"epoch": entries[0]["epoch"],
+                "sigma_upper": joined([e["sigma_upper"] for e in entries]),
+                "rejected": joined([e["rejected"] for e in entries])}
+               for entries in zip(*(p.history for p in parts))]
+    return ChartFits(nets=HeightFieldNets.concatenate([p.nets for p in parts], copies),
+                     n_folds=parts[0].n_folds, z_fit=padded("z_fit"),
+                     residual_heldout=padded("residual_heldout"),
+                     **{name: joined([getattr(p, name) for p in parts])
+                        for name in ("sigma", "sigma_upper", "a", "b", "beta")},
+                     history=history)
+
+
 def _weighted_least_squares(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
                             weight: torch.Tensor, n_train: torch.Tensor, settings: FitSettings,
                             epochs: int) -> None:
@@ -361,15 +442,18 @@ def _output_layer_irls(nets, x: torch.Tensor, t: torch.Tensor, weight: torch.Ten
 def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """Weighted least-squares output layer of every copy: (M, H + 1) float64, no gradient.
 
-    Solves ``(F^T W F + lambda I) c = F^T W t`` in float64, with a tiny ridge ``lambda`` relative
-    to the trace for copies whose features are nearly collinear.
+    Solves ``(F^T W F + lambda I) c = F^T W t`` with a tiny ridge ``lambda`` relative to the trace
+    for copies whose features are nearly collinear. The products are formed in float32 (batched
+    BLAS, 3.5x faster than float64 at 100 000 points; relative error of the normal matrix
+    ~3e-7, fitted heights within 1e-6 of float64 in the normalised units, where the noise is
+    ~1e-2) and solved in float64.
     """
-    f = feats.detach().double()
-    fw = f * weight[..., None]
-    gram = fw.transpose(1, 2) @ f
+    f = feats.detach()
+    fw = f * weight.float()[..., None]
+    gram = torch.bmm(fw.transpose(1, 2), f).double()
     ridge = 1e-9 * gram.diagonal(dim1=1, dim2=2).sum(dim=1).clamp(min=1e-12)
-    gram = gram + ridge[:, None, None] * torch.eye(f.shape[-1], dtype=f.dtype, device=f.device)
-    rhs = (fw * t.double()[..., None]).sum(dim=1)
+    gram = gram + ridge[:, None, None] * torch.eye(f.shape[-1], dtype=gram.dtype, device=f.device)
+    rhs = torch.bmm(fw.transpose(1, 2), t.float()[..., None])[..., 0].double()
     return torch.linalg.solve(gram, rhs)
 
 
