@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from scanrig.surface import filter_points
-from scanrig.surface.sampling_need import _max_principal_curvature, sampling_need
+from scanrig.surface.sampling_need import _max_principal_curvature, _mesh_spacing, sampling_need
 
 
 C = 0.4  # z = C (x^2 + y^2) / 2: principal curvatures C / W^(1/2) and C / W^(3/2)
@@ -40,9 +40,22 @@ def test_hole_needs_samples(need_map):
     centre, radius = HOLE
     deep = np.linalg.norm(p[:, :2] - centre, axis=1) < 0.3 * radius
     assert deep.sum() > 5
-    # every inlier is >= 0.7 R from a deep node, so its 8-nearest radius r_8 is too, and
-    # h_actual = 1/sqrt(8 / (pi r_8^2)) >= 0.7 R sqrt(pi / 8) (inliers were denoised by ~1e-3 m)
-    assert np.all(need_map.h_actual[deep] >= 0.7 * radius * np.sqrt(np.pi / 8) - 2e-3)
+    # the mesh's triangles over the hole span it: their chords at a node near its centre are
+    # about the hole's diameter 2R (0.49-0.51 m measured), against ~0.12 m elsewhere
+    assert np.all(need_map.h_actual[deep] >= 1.4 * radius)
+    assert np.median(need_map.h_actual[~deep]) < 0.5 * radius
     # elsewhere ~350 inliers per m^2 give r_8 ~ 0.085 m: density is > 2x lower in the hole
     assert np.median(need_map.density_need[deep]) > 2 * np.median(need_map.density_need[~deep])
     np.testing.assert_allclose(np.linalg.norm(need_map.normals, axis=1), 1.0, atol=1e-9)
+
+
+def test_mesh_spacing_is_the_chord_of_the_circumcircle_through_the_node():
+    # a square grid of spacing s: right triangles, circumcentre at the hypotenuse's midpoint,
+    # R = s / sqrt(2); chord 0 at a sample, 2R = s sqrt(2) at a square's centre
+    s = 0.01
+    g = np.arange(5) * s
+    samples = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    nodes = np.array([[s, s], [1.5 * s, 2.5 * s], [-s, 0.0]])  # a sample, a centre, outside
+    chord = _mesh_spacing(samples, nodes)
+    np.testing.assert_allclose(chord, [0.0, s * np.sqrt(2), s * np.sqrt(2)], atol=1e-9)  # sqrt of rounding
+    assert np.all(np.isinf(_mesh_spacing(np.column_stack([g, g]), nodes)))  # collinear: no mesh

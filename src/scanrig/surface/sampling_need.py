@@ -7,7 +7,15 @@ Three criteria, each a per-node number where larger means "sample here":
 ``curvature``
     ``h_actual / h_required``: the local sample spacing over the spacing allowed by the chordal
     error ``tolerance`` at the fitted surface's largest principal curvature,
-    ``h_required = sqrt(8 tolerance / kappa_max)``.
+    ``h_required = sqrt(8 tolerance / kappa_max)``. The spacing is that of the mesh through
+    the inliers at the node (our choice): in the Delaunay triangle of the chart's inliers that
+    holds the node, with circumcentre ``c`` and circumradius ``R``, linear interpolation of a
+    surface of curvature ``kappa`` errs by ``kappa (R^2 - |p - c|^2) / 2`` at ``p``, which is the
+    sagitta of a chord ``h_actual = 2 sqrt(R^2 - |p - c|^2)``; so ``curvature^2`` is the
+    predicted chordal error over the tolerance. Nodes outside the inliers' hull get the chart's
+    longest mesh edge (nothing there is sampled). Replaced: ``1 / sqrt(density)`` of the 8
+    nearest inliers, a smoothed spacing that ranked the truly under-sampled nodes no better
+    than density alone (average precision 0.528 against 0.549).
 ``density``
     ``median density / density``: inliers per square metre of surface (from the ``k`` nearest
     inliers), relative to the cloud's median.
@@ -26,7 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from scanrig.errors import InputError
 
@@ -44,7 +52,8 @@ class SamplingNeedMap:
     h_required : (M,) float array
         Largest spacing meeting the chordal tolerance, metres (inf where flat).
     h_actual : (M,) float array
-        Local inlier spacing ``1 / sqrt(density)``, metres.
+        Spacing of the inliers' mesh at the node (chord ``2 sqrt(R^2 - |p - c|^2)`` of its
+        Delaunay triangle's circumcircle), metres.
     density : (M,) float array
         Inliers per square metre.
     spread : (M,) float array
@@ -122,12 +131,13 @@ def sampling_need(result, *, tolerance: float, step: float | None = None, k: int
         kappa = _max_principal_curvature(g, h)
         pos = chart.from_chart(np.column_stack([uv, heights[c, 0, :m] * zs]))
         n_local = np.column_stack([-g, np.ones(m)]) / np.sqrt(1 + (g**2).sum(axis=1))[:, None]
-        rows.append((pos, n_local @ chart.rotation, kappa, heights[c, :, :m].std(axis=0) * zs))
-    pos, normals, kappa, spread = (np.concatenate(v) for v in zip(*rows))
+        members = chart.members[result.inlier[chart.members]]
+        spacing = _mesh_spacing(chart.to_chart(result.denoised[members])[:, :2], uv)
+        rows.append((pos, n_local @ chart.rotation, kappa, heights[c, :, :m].std(axis=0) * zs, spacing))
+    pos, normals, kappa, spread, h_actual = (np.concatenate(v) for v in zip(*rows))
 
     r_k = tree.query(pos, k=k)[0][:, -1]
     density = k / (np.pi * np.maximum(r_k, 1e-300) ** 2)
-    h_actual = 1.0 / np.sqrt(density)
     with np.errstate(divide="ignore"):
         h_required = np.sqrt(8.0 * tolerance / kappa)
     curvature = h_actual / h_required
@@ -135,6 +145,42 @@ def sampling_need(result, *, tolerance: float, step: float | None = None, k: int
     spread_need = spread / tolerance
     return SamplingNeedMap(pos, normals, h_required, h_actual, density, spread, curvature,
                            density_need, spread_need, curvature)
+
+
+def _mesh_spacing(samples_uv: np.ndarray, nodes_uv: np.ndarray) -> np.ndarray:
+    """Chord ``2 sqrt(R^2 - |p - c|^2)`` of the circumcircle of each node's Delaunay triangle.
+
+    Parameters
+    ----------
+    samples_uv : (n, 2) float array
+        Sample positions in a chart plane, metres.
+    nodes_uv : (m, 2) float array
+        Nodes in the same plane.
+
+    Returns
+    -------
+    (m,) float array
+        Metres; nodes outside the samples' hull get the mesh's longest edge (infinity without
+        a triangle: fewer than 3 samples, or all on a line).
+    """
+    try:
+        tri = Delaunay(samples_uv)
+    except QhullError:  # fewer than 3 samples, or all on a line: no triangle anywhere
+        return np.full(len(nodes_uv), np.inf)
+    corners = samples_uv[tri.simplices]  # (T, 3, 2)
+    a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    safe = np.where(np.abs(cross) > 0, cross, np.inf)
+    aa, bb = (a**2).sum(axis=1), (b**2).sum(axis=1)
+    offset = np.column_stack([b[:, 1] * aa - a[:, 1] * bb, a[:, 0] * bb - b[:, 0] * aa]) / (2 * safe[:, None])
+    centre, radius2 = corners[:, 0] + offset, (offset**2).sum(axis=1)
+    simplex = tri.find_simplex(nodes_uv)
+    inside = simplex >= 0
+    power = radius2[simplex[inside]] - ((nodes_uv[inside] - centre[simplex[inside]]) ** 2).sum(axis=1)
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    chord = np.full(len(nodes_uv), edges.max())
+    chord[inside] = 2.0 * np.sqrt(np.maximum(power, 0.0))
+    return chord
 
 
 def _max_principal_curvature(grad: np.ndarray, hess: np.ndarray) -> np.ndarray:
