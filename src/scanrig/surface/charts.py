@@ -131,19 +131,58 @@ def split_charts(points: np.ndarray, normals: np.ndarray, *, max_points: int, q:
         origin, rotation = _frame(points[idx])
         facing = np.abs(normals[idx] @ rotation[2])
         flat_enough = np.quantile(facing, q) >= cos_max
-        if len(idx) <= min_points or (len(idx) <= max_points and flat_enough):
-            cores.append((idx, origin, rotation))
-            continue
-        along = (points[idx] - origin) @ rotation[0]
-        below = along <= np.median(along)
-        if below.all() or not below.any():
-            cores.append((idx, origin, rotation))
-            continue
-        pending += [idx[below], idx[~below]]
+        halves = _halves(points, idx, origin, rotation)
+        if len(idx) <= min_points or (len(idx) <= max_points and flat_enough) or halves is None:
+            cores.append(idx)
+        else:
+            pending += halves
+    return _charts_from_cores(points, normals, cores, q=q, cos_max=cos_max, overlap=overlap)
 
+
+def halve_charts(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *, q: float,
+                 max_angle: float = np.deg2rad(60.0), overlap: float = 0.25) -> list[Chart]:
+    """Split each chart's core in two at the median of its longest axis (new members).
+
+    For charts that cannot follow their surface (a step or a gap between two objects inside
+    one height field). A core that cannot be halved (all points at one position along the
+    axis) is returned as it was.
+
+    Parameters
+    ----------
+    points, normals : (N, 3) float arrays
+        The cloud the charts were split from.
+    charts : list of Chart
+    q, max_angle, overlap
+        As in :func:`split_charts`.
+
+    Returns
+    -------
+    list of Chart
+        Two charts per input chart (one where it could not be halved).
+    """
+    cores = []
+    for chart in charts:
+        cores += _halves(points, chart.core, chart.origin, chart.rotation) or [chart.core]
+    return _charts_from_cores(points, normals, cores, q=q, cos_max=np.cos(max_angle), overlap=overlap)
+
+
+def _halves(points: np.ndarray, idx: np.ndarray, origin: np.ndarray,
+            rotation: np.ndarray) -> list[np.ndarray] | None:
+    """``idx`` cut at the median of the first axis of ``rotation``; None if one side is empty."""
+    along = (points[idx] - origin) @ rotation[0]
+    below = along <= np.median(along)
+    if below.all() or not below.any():
+        return None
+    return [idx[below], idx[~below]]
+
+
+def _charts_from_cores(points: np.ndarray, normals: np.ndarray, cores: list[np.ndarray], *, q: float,
+                       cos_max: float, overlap: float) -> list[Chart]:
+    """Frame, radius, reach, height window and members of each core (see :func:`split_charts`)."""
     tree = cKDTree(points)
     charts = []
-    for core, origin, rotation in cores:
+    for core in cores:
+        origin, rotation = _frame(points[core])
         local = (points[core] - origin) @ rotation.T
         radius = float(np.max(np.linalg.norm(local[:, :2], axis=1)))
         low, high = local[:, :2].min(axis=0), local[:, :2].max(axis=0)

@@ -8,14 +8,18 @@ import numpy as np
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
-from scanrig.surface.charts import Chart, blend_weights, estimate_normals, split_charts
+from scanrig.surface.charts import Chart, blend_weights, estimate_normals, halve_charts, split_charts
 from scanrig.surface.hampel import check_q
-from scanrig.surface.robust_fit import ChartFits, FitSettings, fit_charts_by_size
+from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
 #: the median chart's noise scale; and each point's own sigma if given) does not move points.
 TRUST_FACTOR = 3.0
+#: Rounds of halving the charts that cannot follow their surface (see :func:`_loose_charts`).
+REFINE_ROUNDS = 6
+#: Smallest core of a halved chart.
+MIN_CORE = 64
 #: Largest angle between a point's normal and the normal of a chart that may move it.
 MAX_NORMAL_ANGLE = np.deg2rad(60.0)
 
@@ -129,6 +133,29 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
 
     normals = estimate_normals(points)
     charts = split_charts(points, normals, max_points=max_chart_points, q=q)
+    fits, uv_scale, z_scale = _fit(points, charts, settings, rng, train_mask, sigma_floor, device)
+    for _ in range(REFINE_ROUNDS):
+        # a chart that cannot follow its surface (a height field holding a step, or the tops of
+        # two objects and the floor between them) is halved and refitted
+        loose = _loose_charts(charts, fits, z_scale, settings, sigma_floor, point_sigma)
+        loose &= np.array([len(c.core) >= 2 * MIN_CORE for c in charts])
+        if not loose.any():
+            break
+        halves = halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q)
+        new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device)
+        keep = np.flatnonzero(~loose)
+        fits = concatenate_fits([fits, new_fits], np.concatenate([keep, len(charts) + np.arange(len(halves))]))
+        charts = [charts[i] for i in keep] + halves
+        uv_scale = np.concatenate([uv_scale[keep], new_uv_scale])
+        z_scale = np.concatenate([z_scale[keep], new_z_scale])
+
+    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
+                          point_sigma)
+
+
+def _fit(points: np.ndarray, charts: list[Chart], settings: FitSettings, rng: np.random.Generator,
+         train_mask: np.ndarray | None, sigma_floor: float, device: str) -> tuple[ChartFits, np.ndarray, np.ndarray]:
+    """Fit the charts' networks in normalised coordinates; returns fits, uv and height scales (C,)."""
     uv_scale = np.array([max(chart.radius, 1e-300) for chart in charts])
     local = [chart.to_chart(points[chart.members]) for chart in charts]
     z_scale = np.array([max(h[:, 2].std(), 1e-9 * s) for h, s in zip(local, uv_scale)])
@@ -136,9 +163,35 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
                               [h[:, 2] / s for h, s in zip(local, z_scale)], settings=settings, rng=rng,
                               train_mask=None if train_mask is None else [train_mask[c.members] for c in charts],
                               sigma_floor=sigma_floor / z_scale, device=device)
+    return fits, uv_scale, z_scale
 
-    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
-                          point_sigma)
+
+def _chart_noise(fits: ChartFits, z_scale: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per chart, metres: the scale of the rejection point ``b / r``, and how closely the network
+    follows its points, the held-out noise scale before the cap of the robust start (a chart
+    straddling a step keeps a tight rejection point from its start, but its held-out residuals
+    stay large)."""
+    sigma_c = fits.b / r * z_scale
+    return sigma_c, np.maximum(fits.sigma_upper * z_scale, sigma_c)
+
+
+def _loose_charts(charts: list[Chart], fits: ChartFits, z_scale: np.ndarray, settings: FitSettings,
+                  sigma_floor: float, point_sigma: np.ndarray | None) -> np.ndarray:
+    """(C,) bool: charts whose network does not follow their points.
+
+    Held-out noise scale above ``TRUST_FACTOR`` times the reference (``sigma_floor`` if given,
+    else the median ``point_sigma`` of the chart's core if given, else the median chart's), or
+    more than ``q`` of the chart's points beyond the rejection point: more bad data than the
+    fit tolerates, e.g. a step or a second object's face taken for a cluster of outliers.
+    """
+    _, sigma_fit = _chart_noise(fits, z_scale, settings.constants.r)
+    if sigma_floor > 0:
+        reference = np.full(len(charts), sigma_floor)
+    elif point_sigma is not None:
+        reference = np.array([np.median(point_sigma[c.core]) for c in charts])
+    else:
+        reference = np.full(len(charts), np.median(sigma_fit))
+    return (sigma_fit > TRUST_FACTOR * reference) | (fits.history[-1]["rejected"] > settings.q)
 
 
 def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart], fits: ChartFits,
@@ -162,11 +215,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     """
     n = len(points)
     r = settings.constants.r
-    sigma_c = fits.b / r * z_scale  # (C,) metres: the scale of the rejection point
-    # how closely the chart's network follows its points: the held-out noise scale before the
-    # cap of the robust start (a chart straddling a step keeps a tight rejection point from its
-    # start, but its held-out residuals stay large)
-    sigma_fit = np.maximum(fits.sigma_upper * z_scale, sigma_c)
+    sigma_c, sigma_fit = _chart_noise(fits, z_scale, r)
     # reference noise: the known sensor noise if given, else the typical chart's
     sigma_ref = sigma_floor if sigma_floor > 0 else max(float(np.median(sigma_fit)), 1e-300)
     cos_max = np.cos(MAX_NORMAL_ANGLE)

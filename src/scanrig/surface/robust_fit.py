@@ -103,11 +103,11 @@ class FitSettings:
     depth: int = 2
     n_folds: int = 2
     start_neighbours: int = 24
-    start_epochs: int = 100
-    robust_epochs: int = 300
+    start_epochs: int = 60
+    robust_epochs: int = 200
     update_every: int = 40
     final_irls: int = 5
-    epochs: int = 300
+    epochs: int = 200
     refit: bool = True
     learning_rate: float = 0.01
     constants: HampelConstants = field(default_factory=HampelConstants)
@@ -368,22 +368,35 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
                 mask[row, :sizes[c]] = train_mask[c]
         parts.append(fit_charts(uv_g, z_g, valid, settings=settings, rng=rng, train_mask=mask,
                                 sigma_floor=floor[group], device=device))
-    return _merge_fits(parts, np.concatenate(groups), sizes.max())
+    return concatenate_fits(parts, np.argsort(np.concatenate(groups)))
 
 
-def _merge_fits(parts: list[ChartFits], charts: np.ndarray, n_max: int) -> ChartFits:
-    """Merge the fits of groups of charts; ``charts`` lists the groups' charts end to end."""
-    inverse = np.argsort(charts)
+def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
+    """The charts ``rows`` of several fits laid end to end (any order, repeats allowed).
+
+    Parameters
+    ----------
+    parts : list of ChartFits
+        Same schedule and number of folds.
+    rows : (C,) int array
+        Indices into the parts' charts, counted across the parts in order.
+
+    Returns
+    -------
+    ChartFits
+        Padded arrays widened to the widest part (NaN padding).
+    """
     k = parts[0].n_folds + 1
-    copies = torch.as_tensor((inverse[:, None] * k + np.arange(k)).ravel())
+    copies = torch.as_tensor((np.asarray(rows)[:, None] * k + np.arange(k)).ravel())
+    n_max = max(p.z_fit.shape[1] for p in parts)
 
     def padded(name):
-        rows = [np.pad(getattr(p, name), ((0, 0), (0, n_max - getattr(p, name).shape[1])),
-                       constant_values=np.nan) for p in parts]
-        return np.concatenate(rows)[inverse]
+        blocks = [np.pad(getattr(p, name), ((0, 0), (0, n_max - getattr(p, name).shape[1])),
+                         constant_values=np.nan) for p in parts]
+        return np.concatenate(blocks)[rows]
 
     def joined(values):
-        return np.concatenate(values)[inverse]
+        return np.concatenate(values)[rows]
 
     history = [{"epoch": entries[0]["epoch"],
                 "sigma_upper": joined([e["sigma_upper"] for e in entries]),
