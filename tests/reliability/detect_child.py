@@ -2,12 +2,14 @@
 
 Runs ``scanrig detect ROOT --resume`` through the command line, with a checkpoint of
 ``traces.parquet`` after every chunk of frames (instead of every 30 s) so that a kill at a random
-moment can land before, between or inside checkpoint writes. Each chunk is slowed by 50 ms so
-that a signal sent after the first checkpoint lands mid-run on any machine (the 128 small frames
-took ~0.3 s, and a Ctrl-C test on a fast run found the detection already finished, exit 0).
+moment can land before, between or inside checkpoint writes. With ``SCANRIG_TEST_HOLD=1`` in
+the environment, every chunk after the first waits (up to 60 s) before it runs, so that a signal
+sent after the first checkpoint always lands mid-run: the Ctrl-C test on a loaded machine found
+the 128 small frames already done when its signal arrived (exit 0).
 """
 
 import functools
+import os
 import sys
 import time
 
@@ -16,11 +18,14 @@ from scanrig.laser import session_detect
 
 if __name__ == "__main__":
     session_detect.detect_session = functools.partial(session_detect.detect_session, checkpoint_s=0.0)
-    run_job = session_detect._run_job
+    if os.environ.get("SCANRIG_TEST_HOLD") == "1":
+        run_job, started = session_detect._run_job, []
 
-    def slow_job(job):
-        time.sleep(0.05)
-        return run_job(job)
+        def held_job(job):
+            if started:
+                time.sleep(60.0)  # interrupted by the test's signal
+            started.append(job)
+            return run_job(job)
 
-    session_detect._run_job = slow_job
+        session_detect._run_job = held_job
     sys.exit(main(["detect", sys.argv[1], "--mode", "spot", "--resume"]))

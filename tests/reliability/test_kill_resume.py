@@ -146,7 +146,8 @@ def test_detect_ctrl_c_exits_130_and_leaves_a_consistent_session(tmp_path):
     """SIGINT (Ctrl-C) after the first checkpoint: exit 130, no traceback, a readable partial traces file."""
     spot_frames(tmp_path, np.random.default_rng(9))
     child = subprocess.Popen([sys.executable, "-m", "tests.reliability.detect_child", str(tmp_path)], cwd=REPO,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "SCANRIG_TEST_HOLD": "1"})
     while child.poll() is None and checkpoint_id(tmp_path / "traces.parquet") is None:
         time.sleep(0.002)
     child.send_signal(signal.SIGINT)

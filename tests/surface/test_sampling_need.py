@@ -41,9 +41,10 @@ def test_hole_needs_samples(need_map):
     deep = np.linalg.norm(p[:, :2] - centre, axis=1) < 0.3 * radius
     assert deep.sum() > 5
     # the mesh's triangles over the hole span it: their chords at a node near its centre are
-    # about the hole's diameter 2R (0.49-0.51 m measured), against ~0.12 m elsewhere
+    # about the hole's diameter 2R (0.49-0.51 m measured), against ~2.4 spacings elsewhere
+    # (~375 inliers per m^2: spacing 0.052 m, median chord 0.12-0.13 m measured)
     assert np.all(need_map.h_actual[deep] >= 1.4 * radius)
-    assert np.median(need_map.h_actual[~deep]) < 0.5 * radius
+    assert np.median(need_map.h_actual[~deep]) < 0.6 * radius
     # elsewhere ~350 inliers per m^2 give r_8 ~ 0.085 m: density is > 2x lower in the hole
     assert np.median(need_map.density_need[deep]) > 2 * np.median(need_map.density_need[~deep])
     np.testing.assert_allclose(np.linalg.norm(need_map.normals, axis=1), 1.0, atol=1e-9)
