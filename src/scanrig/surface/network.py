@@ -70,7 +70,7 @@ class HeightFieldNets(torch.nn.Module):
         self.biases = torch.nn.ParameterList(biases)
 
     @classmethod
-    def concatenate(cls, parts: list["HeightFieldNets"], order: torch.Tensor) -> "HeightFieldNets":
+    def concatenate(cls, parts: list[HeightFieldNets], order: torch.Tensor) -> HeightFieldNets:
         """One batch holding the copies of several batches of the same architecture.
 
         Parameters
@@ -90,21 +90,26 @@ class HeightFieldNets(torch.nn.Module):
                     mine[i] = torch.nn.Parameter(torch.cat([t[i] for t in theirs])[order])
         return out
 
-    def features(self, uv: torch.Tensor) -> torch.Tensor:
+    def features(self, uv: torch.Tensor, copies: torch.Tensor | None = None) -> torch.Tensor:
         """Activations of the last hidden layer with a constant column appended.
 
         Parameters
         ----------
-        uv : (n_models, n, 2) tensor
+        uv : (n_models, n, 2) tensor, or (V, n, 2) with ``copies``
             Normalised chart coordinates.
+        copies : (V,) int tensor, optional
+            Which copy's weights evaluate each batch entry (several entries may share a copy:
+            its points split in blocks of equal size); default: entry i is copy i.
 
         Returns
         -------
-        (n_models, n, hidden + 1) tensor
+        (n_models or V, n, hidden + 1) tensor
             The output layer is linear in these: ``z = features @ [w_out; b_out]``.
         """
         h = uv
         for w, b in zip(self.weights[:-1], self.biases[:-1]):
+            if copies is not None:
+                w, b = w[copies], b[copies]
             h = self.activation(torch.baddbmm(b, h, w))
         return torch.cat([h, torch.ones_like(h[..., :1])], dim=-1)
 

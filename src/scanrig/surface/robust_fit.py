@@ -215,6 +215,79 @@ class ChartFits:
         return grad.double().cpu().numpy(), hess.double().cpu().numpy()
 
 
+@dataclass
+class _Blocks:
+    """The training points of every copy, in blocks of equal length.
+
+    A fold network trains on about ``1/n_folds`` fewer points than the chart's full network;
+    a batch of copies padded to the full network's length computed every fold network on
+    points it must not see (masked), a third of the work with two folds. Here each copy's
+    training points are cut into blocks of the fold networks' length (the full network's into
+    ``n_folds`` blocks) and a block is evaluated with its copy's weights (``owner``); the
+    output layer sums its copy's blocks. Rows: blocks; columns: points.
+
+    Attributes
+    ----------
+    x : (V, L, 2) tensor
+    t : (V, L) tensor
+    m : (V, L) bool tensor
+        Real points (the rest is padding).
+    owner : (V,) int tensor
+        Copy of each block.
+    n_copies : int
+    n_train : (V,) tensor
+        Training points of each block's copy.
+    index : (V, L) int tensor
+        Column of each block point in the copies' padded arrays.
+    """
+
+    x: torch.Tensor
+    t: torch.Tensor
+    m: torch.Tensor
+    owner: torch.Tensor
+    n_copies: int
+    n_train: torch.Tensor
+    index: torch.Tensor
+
+    @classmethod
+    def of(cls, x: torch.Tensor, t: torch.Tensor, mask: np.ndarray, *, n_folds: int) -> _Blocks:
+        """Blocks of the points ``mask`` (M, n) of copies ``x`` (M, n, 2), ``t`` (M, n)."""
+        counts = mask.sum(axis=1)
+        is_full = (np.arange(len(mask)) % (n_folds + 1)) == 0
+        length = max(1, int(max(counts[~is_full].max(initial=0), np.ceil(counts.max() / n_folds))))
+        pieces = max(1, int(np.ceil(counts.max() / length)))
+        order = np.argsort(~mask, axis=1, kind="stable")  # each copy's points first
+        order = np.pad(order, ((0, 0), (0, max(0, pieces * length - order.shape[1]))))
+        slot = np.arange(pieces * length).reshape(pieces, length)
+        real = slot[None] < counts[:, None, None]  # (M, P, L)
+        keep = real.any(axis=2)
+        owner = np.repeat(np.arange(len(mask)), pieces).reshape(len(mask), pieces)[keep]
+        index = order[:, : pieces * length].reshape(len(mask), pieces, length)[keep]
+        device = x.device
+        owner_t, index_t = torch.as_tensor(owner, device=device), torch.as_tensor(index, device=device)
+        n_train = torch.as_tensor(np.maximum(counts, 1), dtype=t.dtype, device=device)[owner_t]
+        return cls(x=torch.gather(x[owner_t], 1, index_t[..., None].expand(-1, -1, 2)),
+                   t=torch.gather(t[owner_t], 1, index_t), m=torch.as_tensor(real[keep], device=device),
+                   owner=owner_t, n_copies=len(mask), n_train=n_train, index=index_t)
+
+    def gather(self, per_copy: torch.Tensor) -> torch.Tensor:
+        """Per-copy, per-point values (M, n) at the blocks' points: (V, L)."""
+        return torch.gather(per_copy[self.owner], 1, self.index)
+
+    def per_block(self, cuts: dict) -> dict:
+        """Per-copy cut-off tensors (M, 1) for each block: (V, 1)."""
+        return {key: value[self.owner] for key, value in cuts.items()}
+
+    def residual(self, nets: HeightFieldNets, weight: torch.Tensor) -> torch.Tensor:
+        """Set the output layer to its weighted optimum; residuals at the block points (V, L),
+        differentiable in the hidden layers."""
+        feats = nets.features(self.x, self.owner)
+        with torch.no_grad():
+            coef = _weighted_solve(feats, self.t, weight, self.owner, self.n_copies)
+            nets.set_output(coef)
+        return self.t - torch.bmm(feats, coef[self.owner][..., None].float())[..., 0]
+
+
 def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: FitSettings,
                rng: np.random.Generator, train_mask: np.ndarray | None = None,
                sigma_floor: np.ndarray | float = 0.0, device: str = "cpu") -> ChartFits:
@@ -260,15 +333,14 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     x = torch.as_tensor(uv, dtype=torch.float32, device=device)
     x = x[:, None].expand(-1, k, -1, -1).reshape(-1, n_max, 2)
     t = torch.as_tensor(z, dtype=torch.float32, device=device)[:, None].expand(-1, k, -1).reshape(-1, n_max)
-    m = torch.as_tensor(copy_mask.reshape(-1, n_max), device=device)
+    rows = _Blocks.of(x, t, copy_mask.reshape(-1, n_max), n_folds=settings.n_folds)
 
     n_loop = settings.robust_epochs if settings.loss == "hampel" else settings.epochs
     opt = torch.optim.Adam(nets.hidden_parameters(), lr=settings.learning_rate)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=n_loop,
                                                        eta_min=settings.learning_rate / 20)
-    n_train = m.sum(dim=1).clamp(min=1)
     cut = np.full(n_charts, np.inf)
-    weight = m.double()
+    weight = rows.m.double()
     history = []
     initial = [p.detach().clone() for p in nets.hidden_parameters()]
     if settings.loss == "hampel":  # high-breakdown start: weights and scale from local LTS planes
@@ -277,26 +349,23 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                                          n_boot=settings.n_boot,
                                          alpha=settings.alpha)
         cut[:] = settings.constants.r * np.maximum(start_upper, sigma_floor)
-        weight = weight * torch.as_tensor(np.repeat(good, k, axis=0), device=device).double()
-        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.start_epochs)
+        weight = weight * rows.gather(torch.as_tensor(np.repeat(good, k, axis=0), device=device)).double()
+        _weighted_least_squares(nets, rows, weight, settings, settings.start_epochs)
     state = None
     for epoch in range(n_loop):
         if epoch % settings.update_every == 0:
             state = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
             history.append({"epoch": epoch, "sigma_upper": state["sigma_upper"].copy(),
                             "rejected": state["rejected"]})
-        feats = nets.features(x)
-        with torch.no_grad():
-            coef = _weighted_solve(feats, t, weight)
-            nets.set_output(coef)
-        r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-        weight = _irls_weight(r.detach(), m, settings.loss, state)
-        loss_per_copy = _robust_loss(r, m, settings.loss, state["torch"]) / n_train
+        r = rows.residual(nets, weight)
+        cuts = rows.per_block(state["torch"])
+        weight = _irls_weight(r.detach(), rows.m, settings.loss, cuts)
+        loss_per_block = _robust_loss(r, rows.m, settings.loss, cuts) / rows.n_train
         opt.zero_grad(set_to_none=True)
-        loss_per_copy.sum().backward()
+        loss_per_block.sum().backward()
         opt.step()
         sched.step()
-    weight = _output_layer_irls(nets, x, t, weight, m, settings, state)
+    weight = _output_layer_irls(nets, rows, weight, settings, state)
     if settings.loss == "hampel" and settings.refit:
         # reweighting step: the robust weights frozen, every copy retrained from its initial
         # hidden layers by weighted least squares (what the robust fit has learnt is which
@@ -304,8 +373,8 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         with torch.no_grad():
             for p, p0 in zip(nets.hidden_parameters(), initial):
                 p.copy_(p0)
-        _weighted_least_squares(nets, x, t, weight, n_train, settings, settings.epochs)
-        weight = _output_layer_irls(nets, x, t, weight, m, settings, state)
+        _weighted_least_squares(nets, rows, weight, settings, settings.epochs)
+        weight = _output_layer_irls(nets, rows, weight, settings, state)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
     history.append({"epoch": n_loop, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
@@ -410,9 +479,8 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
                      history=history)
 
 
-def _weighted_least_squares(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
-                            weight: torch.Tensor, n_train: torch.Tensor, settings: FitSettings,
-                            epochs: int) -> None:
+def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor,
+                            settings: FitSettings, epochs: int) -> None:
     """Train every copy on the weighted squared loss with fixed weights, in place.
 
     The schedule is the plain least-squares one (Adam with cosine decay over ``epochs``, the
@@ -423,59 +491,60 @@ def _weighted_least_squares(nets: HeightFieldNets, x: torch.Tensor, t: torch.Ten
                                                        eta_min=settings.learning_rate / 20)
     w = weight.float()
     for _ in range(epochs):
-        feats = nets.features(x)
-        with torch.no_grad():
-            coef = _weighted_solve(feats, t, weight)
-            nets.set_output(coef)
-        r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-        loss_per_copy = 0.5 * (w * r.square()).sum(dim=1) / n_train
+        r = rows.residual(nets, weight)
+        loss_per_block = 0.5 * (w * r.square()).sum(dim=1) / rows.n_train
         opt.zero_grad(set_to_none=True)
-        loss_per_copy.sum().backward()
+        loss_per_block.sum().backward()
         opt.step()
         sched.step()
 
 
-def _output_layer_irls(nets, x: torch.Tensor, t: torch.Tensor, weight: torch.Tensor, m: torch.Tensor,
-                       settings: FitSettings, state: dict) -> torch.Tensor:
+def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitSettings,
+                       state: dict) -> torch.Tensor:
     """Set the output layer to its IRLS optimum for the current hidden layers.
 
     ``settings.final_irls`` steps of weighted least squares, the weights ``psi(r) / r`` of the
-    loss at the current cut-offs re-evaluated after each; returns the last weights, (M, n).
+    loss at the current cut-offs re-evaluated after each; returns the last weights, (V, L).
     """
+    cuts = rows.per_block(state["torch"])
     with torch.no_grad():
-        feats = nets.features(x)
+        feats = nets.features(rows.x, rows.owner)
         for _ in range(settings.final_irls):
-            coef = _weighted_solve(feats, t, weight)
-            r = t - torch.bmm(feats, coef[..., None].float())[..., 0]
-            weight = _irls_weight(r, m, settings.loss, state)
+            coef = _weighted_solve(feats, rows.t, weight, rows.owner, rows.n_copies)
+            r = rows.t - torch.bmm(feats, coef[rows.owner][..., None].float())[..., 0]
+            weight = _irls_weight(r, rows.m, settings.loss, cuts)
         nets.set_output(coef)
     return weight
 
 
-def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor, owner: torch.Tensor,
+                    n_copies: int) -> torch.Tensor:
     """Weighted least-squares output layer of every copy: (M, H + 1) float64, no gradient.
 
-    Solves ``(F^T W F + lambda I) c = F^T W t`` in float64, with a tiny ridge ``lambda`` relative
-    to the trace for copies whose features are nearly collinear. Not in float32: a trained
-    network's features are so nearly collinear that float32 normal equations (relative error
-    ~3e-7) put the least-squares fit of a clean 64 x 64 sphere cap at 1.3 sigma instead of
-    0.15 sigma.
+    Solves ``(F^T W F + lambda I) c = F^T W t`` in float64, summing the normal equations of each
+    copy's blocks, with a tiny ridge ``lambda`` relative to the trace for copies whose features
+    are nearly collinear. Not in float32: a trained network's features are so nearly collinear
+    that float32 normal equations (relative error ~3e-7) put the least-squares fit of a clean
+    64 x 64 sphere cap at 1.3 sigma instead of 0.15 sigma.
     """
     f = feats.detach().double()
     fw = f * weight[..., None]
-    gram = fw.transpose(1, 2) @ f
+    size = f.shape[-1]
+    gram = torch.zeros(n_copies, size, size, dtype=f.dtype, device=f.device).index_add_(
+        0, owner, fw.transpose(1, 2) @ f)
+    rhs = torch.zeros(n_copies, size, dtype=f.dtype, device=f.device).index_add_(
+        0, owner, (fw * t.double()[..., None]).sum(dim=1))
     ridge = 1e-9 * gram.diagonal(dim1=1, dim2=2).sum(dim=1).clamp(min=1e-12)
-    gram = gram + ridge[:, None, None] * torch.eye(f.shape[-1], dtype=f.dtype, device=f.device)
-    rhs = (fw * t.double()[..., None]).sum(dim=1)
+    gram = gram + ridge[:, None, None] * torch.eye(size, dtype=f.dtype, device=f.device)
     return torch.linalg.solve(gram, rhs)
 
 
-def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, state: dict) -> torch.Tensor:
-    """IRLS weights ``psi(r) / r`` of the loss at the current cut-offs: (M, n) float64."""
+def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, cuts: dict) -> torch.Tensor:
+    """IRLS weights ``psi(r) / r`` of the loss at the cut-offs ``cuts`` (per row of ``r``): float64."""
     r = r.double()
     if loss == "mse":
         return m.double()
-    cut = {key: v.double() for key, v in state["torch"].items()}
+    cut = {key: v.double() for key, v in cuts.items()}
     if loss == "huber":
         w = torch.clamp(cut["huber"] / r.abs().clamp(min=1e-30), max=1.0)
     else:
