@@ -25,6 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+#: Point sets this small are never split further (by :func:`split_charts` or the filter's refinement).
+MIN_CHART_POINTS = 64
+
 
 @dataclass(frozen=True)
 class Chart:
@@ -98,7 +101,7 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
 
 def split_charts(points: np.ndarray, normals: np.ndarray, *, max_points: int, q: float,
                  max_angle: float = np.deg2rad(60.0), overlap: float = 0.25,
-                 min_points: int = 64) -> list[Chart]:
+                 min_points: int = MIN_CHART_POINTS) -> list[Chart]:
     """Partition a cloud into height-field charts with overlapping members.
 
     Parameters

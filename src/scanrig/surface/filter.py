@@ -8,7 +8,8 @@ import numpy as np
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
-from scanrig.surface.charts import Chart, blend_weights, estimate_normals, halve_charts, split_charts
+from scanrig.surface.charts import (MIN_CHART_POINTS, Chart, blend_weights, estimate_normals, halve_charts,
+                                    split_charts)
 from scanrig.surface.hampel import check_q
 from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
 
@@ -18,8 +19,6 @@ MIN_POINTS = 16  # below this a surface network (2 folds x several points) is me
 TRUST_FACTOR = 3.0
 #: Rounds of halving the charts that cannot follow their surface (see :func:`_loose_charts`).
 REFINE_ROUNDS = 6
-#: Smallest core of a halved chart.
-MIN_CORE = 64
 #: Largest angle between a point's normal and the normal of a chart that may move it.
 MAX_NORMAL_ANGLE = np.deg2rad(60.0)
 
@@ -138,7 +137,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         # a chart that cannot follow its surface (a height field holding a step, or the tops of
         # two objects and the floor between them) is halved and refitted
         loose = _loose_charts(charts, fits, z_scale, settings, sigma_floor, point_sigma)
-        loose &= np.array([len(c.core) >= 2 * MIN_CORE for c in charts])
+        loose &= np.array([len(c.core) >= 2 * MIN_CHART_POINTS for c in charts])
         if not loose.any():
             break
         halves = halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q)

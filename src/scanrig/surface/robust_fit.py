@@ -251,7 +251,11 @@ class _Blocks:
 
     @classmethod
     def of(cls, x: torch.Tensor, t: torch.Tensor, mask: np.ndarray, *, n_folds: int) -> _Blocks:
-        """Blocks of the points ``mask`` (M, n) of copies ``x`` (M, n, 2), ``t`` (M, n)."""
+        """Blocks of the points ``mask`` (M, n) of copies ``x`` (M, n, 2), ``t`` (M, n).
+
+        Copies are laid out as in :func:`fit_charts`: each chart's full network, then its
+        ``n_folds`` fold networks.
+        """
         counts = mask.sum(axis=1)
         is_full = (np.arange(len(mask)) % (n_folds + 1)) == 0
         length = max(1, int(max(counts[~is_full].max(initial=0), np.ceil(counts.max() / n_folds))))
