@@ -1,12 +1,18 @@
 """Batched height-field networks, and charts of different sizes fitted in groups."""
 
+import itertools
+import platform
+import resource
+
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings as hypothesis_settings, strategies as st
 
 from scanrig.errors import InputError
-from scanrig.surface.network import HeightFieldNets
-from scanrig.surface.robust_fit import FitSettings, fit_charts_by_size
+from scanrig.surface.memory import keep_freed_memory
+from scanrig.surface.network import HeightFieldNets, _Tanh
+from scanrig.surface.robust_fit import FitSettings, _size_batches, _weighted_solve, fit_charts_by_size
 
 
 @pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2)])
@@ -41,7 +47,7 @@ def test_charts_of_different_sizes_are_fitted_in_groups_and_returned_in_input_or
     z = [o + 0.3 * p[:, 0] + rng.normal(0, 0.01, len(p)) for o, p in zip(offsets, uv)]
     settings = FitSettings(hidden=6, depth=1, epochs=60, robust_epochs=60, update_every=30,
                            start_epochs=20, n_boot=50)
-    fits = fit_charts_by_size(uv, z, settings=settings, rng=np.random.default_rng(0), max_padding=1.25)
+    fits = fit_charts_by_size(uv, z, settings=settings, rng=np.random.default_rng(0), overhead_points=10)
     padded = np.zeros((3, max(sizes), 2))
     for c, p in enumerate(uv):
         padded[c, :len(p)] = p
@@ -50,3 +56,62 @@ def test_charts_of_different_sizes_are_fitted_in_groups_and_returned_in_input_or
         assert np.sqrt(np.mean((fits.z_fit[c, :n] - z[c]) ** 2)) < 0.05
         np.testing.assert_allclose(predicted[c, :n], fits.z_fit[c, :n], atol=1e-5)
     assert fits.sigma.shape == (3,) and all(h["sigma_upper"].shape == (3,) for h in fits.history)
+
+
+def test_tanh_matches_torch_with_first_and_second_derivatives():
+    x = torch.linspace(-8, 8, 2001, dtype=torch.float64, requires_grad=True)
+    torch.testing.assert_close(_Tanh.apply(x), torch.tanh(x), atol=1e-15, rtol=0)
+    assert torch.autograd.gradcheck(_Tanh.apply, (x[::50].detach().requires_grad_(),))
+    assert torch.autograd.gradgradcheck(_Tanh.apply, (x[::50].detach().requires_grad_(),))
+    x32 = torch.linspace(-8, 8, 100_001)
+    assert (_Tanh.apply(x32) - torch.tanh(x32)).abs().max() < 4e-7  # float32 rounding at unit scale
+
+
+def _batch_cost(batches, sizes, overhead):
+    return sum(overhead + sizes[b].max() * len(b) for b in batches)
+
+
+@hypothesis_settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(1, 5000), min_size=1, max_size=7), st.sampled_from([0.0, 10.0, 2500.0]))
+def test_size_batches_partition_the_charts_at_least_cost(size_list, overhead):
+    sizes = np.array(size_list)
+    batches = _size_batches(sizes, overhead)
+    assert sorted(np.concatenate(batches).tolist()) == list(range(len(sizes)))
+    # against every cut of the sorted sizes into contiguous batches
+    order = np.argsort(-sizes, kind="stable")
+    best = min(_batch_cost(np.split(order, list(cuts)), sizes, overhead)
+               for r in range(len(sizes)) for cuts in itertools.combinations(range(1, len(sizes)), r))
+    assert _batch_cost(batches, sizes, overhead) == pytest.approx(best)
+
+
+def test_weighted_solve_matches_numpy_least_squares():
+    gen = torch.Generator().manual_seed(3)
+    feats = torch.rand(4, 50, 6, generator=gen)  # copy c's points in blocks 2c and 2c + 1
+    t = torch.randn(4, 50, generator=gen)
+    weight = torch.rand(4, 50, generator=gen, dtype=torch.float64)
+    coef = _weighted_solve(feats, t, weight, torch.tensor([0, 0, 1, 1]), 2).numpy()
+    for c in range(2):
+        f = feats[2 * c: 2 * c + 2].reshape(-1, 6).double().numpy()
+        w = np.sqrt(weight[2 * c: 2 * c + 2].reshape(-1).numpy())
+        expected = np.linalg.lstsq(f * w[:, None], t[2 * c: 2 * c + 2].reshape(-1).double().numpy() * w, rcond=None)[0]
+        np.testing.assert_allclose(coef[c], expected, rtol=1e-6, atol=1e-8)
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt tuning is glibc's")
+def test_freed_memory_is_reused_without_page_faults():
+    # temporaries of 0.1-10 MB allocated and freed in turn, as in a training epoch: with glibc's
+    # defaults the second round page-faulted 500-1600 times (memory returned and mapped afresh)
+    assert keep_freed_memory() is True and keep_freed_memory() is True
+
+    def round_of_temporaries():
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        for n_bytes in (1 << 20, 6 << 20, 3 << 20, 40 << 20, 2 << 20):
+            a = np.ones(n_bytes // 8)
+            b = np.ones(n_bytes // 4)
+            del a
+            c = np.ones(n_bytes // 16)
+            del b, c
+        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+    round_of_temporaries()
+    assert round_of_temporaries() < 64

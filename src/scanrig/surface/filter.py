@@ -11,6 +11,7 @@ from scanrig.geometry.checks import check_points
 from scanrig.surface.charts import (MIN_CHART_POINTS, Chart, blend_weights, estimate_normals, halve_charts,
                                     split_charts)
 from scanrig.surface.hampel import check_q
+from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
@@ -129,6 +130,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         if not np.all(np.isfinite(point_sigma) & (point_sigma > 0)):
             raise InputError("point_sigma must be finite and positive")
     device = _resolve_device(device)
+    keep_freed_memory()
 
     normals = estimate_normals(points)
     charts = split_charts(points, normals, max_points=max_chart_points, q=q)
