@@ -12,7 +12,9 @@ from hypothesis import given, settings as hypothesis_settings, strategies as st
 from scanrig.errors import InputError
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.network import HeightFieldNets, _Tanh
-from scanrig.surface.robust_fit import FitSettings, _size_batches, _weighted_solve, fit_charts_by_size
+from scanrig.surface.hampel import hampel_weight
+from scanrig.surface.robust_fit import (FitSettings, _Blocks, _bounded_by_heldout, _size_batches, _weighted_solve,
+                                      fit_charts_by_size)
 
 
 @pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2)])
@@ -115,3 +117,36 @@ def test_freed_memory_is_reused_without_page_faults():
 
     round_of_temporaries()
     assert round_of_temporaries() < 64
+
+
+def test_full_network_weights_are_bounded_by_the_held_out_ones():
+    # 2 charts x (full + 2 fold networks), random networks: each full-network weight must become
+    # min(own, Hampel weight of z minus the fold network that did not see the point)
+    gen = torch.Generator().manual_seed(4)
+    n_charts, n, k = 2, 30, 3
+    nets = HeightFieldNets(n_charts * k, hidden=5, depth=2, architecture="mlp", generator=gen)
+    rng = np.random.default_rng(4)
+    uv = torch.as_tensor(rng.uniform(-1, 1, (n_charts, n, 2)), dtype=torch.float32)
+    z = torch.as_tensor(rng.normal(0, 1, (n_charts, n)), dtype=torch.float32)
+    fold = rng.integers(0, 2, (n_charts, n))
+    x = uv[:, None].expand(-1, k, -1, -1).reshape(-1, n, 2)
+    t = z[:, None].expand(-1, k, -1).reshape(-1, n)
+    mask = np.stack([np.ones((n_charts, n), bool)] + [fold != j for j in range(2)], axis=1).reshape(-1, n)
+    rows = _Blocks.of(x, t, mask, n_folds=2)
+    weight = torch.as_tensor(rng.uniform(0, 1, tuple(rows.m.shape))) * rows.m
+    cut = {"a": torch.full((n_charts * k, 1), 0.5), "b": torch.full((n_charts * k, 1), 1.5),
+           "beta": torch.full((n_charts * k, 1), 2.0)}
+    bounded = _bounded_by_heldout(nets, rows, weight, x, t, fold, FitSettings(), {"torch": cut}).numpy()
+    with torch.no_grad():
+        pred = nets(x).reshape(n_charts, k, n).numpy()
+    for v in range(len(rows.owner)):
+        copy = int(rows.owner[v])
+        chart, member = divmod(copy, k)
+        for slot in np.flatnonzero(rows.m[v].numpy()):
+            point = int(rows.index[v, slot])
+            if member == 0:
+                r = float(z[chart, point]) - pred[chart, 1 + fold[chart, point], point]
+                expected = min(float(weight[v, slot]), float(hampel_weight(np.array(r), 0.5, 1.5, 2.0)))
+            else:
+                expected = float(weight[v, slot])
+            assert bounded[v, slot] == pytest.approx(expected, abs=1e-6)

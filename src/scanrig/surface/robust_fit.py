@@ -19,7 +19,8 @@ with the choices documented in ``docs/surface-filter.md``:
    ``update_every`` epochs and never allowed to grow (monotone shrinkage).
 4. **Robust back-propagation**: ``robust_epochs`` epochs of every layer on the Hampel tanh loss
    of :mod:`scanrig.surface.hampel`.
-5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen, every network
+5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen (a full
+   network's weight bounded by the one of its point's held-out residual), every network
    retrained from its initial hidden layers by weighted least squares for ``epochs`` epochs (the
    schedule of the plain least-squares fit): the one-step reweighting of reweighted LTS, which
    forgets the trajectory of the redescending fit and keeps what it learnt, which points to
@@ -377,6 +378,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         # reweighting step: the robust weights frozen, every copy retrained from its initial
         # hidden layers by weighted least squares (what the robust fit has learnt is which
         # points to trust and how much; the trajectory of the redescending fit is forgotten)
+        weight = _bounded_by_heldout(nets, rows, weight, x, t, fold, settings, state)
         with torch.no_grad():
             for p, p0 in zip(nets.hidden_parameters(), initial):
                 p.copy_(p0)
@@ -510,6 +512,46 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
                      **{name: joined([getattr(p, name) for p in parts])
                         for name in ("sigma", "sigma_upper", "a", "b", "beta")},
                      history=history)
+
+
+def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor, x: torch.Tensor,
+                        t: torch.Tensor, fold: np.ndarray, settings: FitSettings, state: dict) -> torch.Tensor:
+    """The full networks' robust weights, each bounded by its point's held-out weight.
+
+    A cluster of outliers just beyond the rejection point pulls the full network, which trains on
+    it, until its own residuals fall inside and its weights stay up; the fold network that never
+    saw a point (only the other fold's half of its cluster) is pulled half as much. Each full
+    network's weight becomes ``min(psi(r)/r, psi(r_heldout)/r_heldout)`` at the current
+    cut-offs; the fold networks keep theirs. Measured (three weight seeds, 40 % outliers): saddle
+    1.03 / 1.54 / 1.09 times the oracle instead of 1.03 / 1.85 / 1.34.
+
+    Parameters
+    ----------
+    nets : HeightFieldNets
+    rows : _Blocks
+    weight : (V, L) float64 tensor
+        Robust weights at the block points.
+    x, t : (M, n, 2), (M, n) tensors
+        Every copy's points and heights.
+    fold : (C, n) int array
+        Fold of each point.
+    settings : FitSettings
+    state : dict
+        Current cut-offs (``state["torch"]``).
+
+    Returns
+    -------
+    (V, L) float64 tensor
+    """
+    n_charts, n_max = fold.shape
+    k = settings.n_folds + 1
+    with torch.no_grad():
+        pred = nets(x).reshape(n_charts, k, n_max)
+        heldout = torch.gather(pred[:, 1:], 1, torch.as_tensor(fold, device=x.device)[:, None])[:, 0]
+        residual = t.reshape(n_charts, k, n_max)[:, 0] - heldout
+        residual = residual[:, None].expand(-1, k, -1).reshape(-1, n_max)
+        held = _irls_weight(rows.gather(residual), rows.m, settings.loss, rows.per_block(state["torch"]))
+    return torch.where((rows.owner % k == 0)[:, None], torch.minimum(weight, held), weight)
 
 
 def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor,
