@@ -95,6 +95,11 @@ def sample(name, n_side, eps, rng):
     return x, y, z, truth, bad, z - truth
 
 
+def protocol_q(eps):
+    """The tolerated bad fraction passed at outlier fraction ``eps``: above it, within [0.25, 0.5]."""
+    return min(0.5, max(0.25, eps + 0.1))
+
+
 def network_methods(points, bad, q, settings, seed):
     """Robust (Hampel), oracle, MSE and Huber networks; each returns (zhat, flags) at the sites."""
     runs = {
@@ -174,7 +179,7 @@ def main():
     for name in surfaces:
         for eps in fractions:
             x, y, z, truth, bad, offset = sample(name, n_side, eps, rng)
-            q = min(0.5, max(0.25, eps + 0.1))
+            q = protocol_q(eps)
             points = np.column_stack([x, y, z])
             n_in = int((~bad).sum())
             p_family = SURFACES[name][1]

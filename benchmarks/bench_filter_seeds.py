@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 import torch
 
-from bench_filter import SIGMA, SURFACES, sample, step_width
+from bench_filter import SIGMA, SURFACES, protocol_q, sample, step_width
 from scanrig.surface.filter import filter_points
 from scanrig.surface.robust_fit import FitSettings
 
@@ -47,7 +47,7 @@ def main():
     for name in SURFACES:
         for eps in FRACTIONS:
             x, y, z, _, bad, _ = sample(name, 64, eps, rng)
-            q = min(0.5, max(0.25, eps + 0.1))
+            q = protocol_q(eps)
             points = np.column_stack([x, y, z])
             f = SURFACES[name][0]
             ratios, frr, width = [], [], []

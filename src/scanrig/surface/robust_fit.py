@@ -546,10 +546,8 @@ def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tens
     n_charts, n_max = fold.shape
     k = settings.n_folds + 1
     with torch.no_grad():
-        pred = nets(x).reshape(n_charts, k, n_max)
-        heldout = torch.gather(pred[:, 1:], 1, torch.as_tensor(fold, device=x.device)[:, None])[:, 0]
-        residual = t.reshape(n_charts, k, n_max)[:, 0] - heldout
-        residual = residual[:, None].expand(-1, k, -1).reshape(-1, n_max)
+        z, heldout = _heldout_prediction(nets, x, t, fold)
+        residual = (z - heldout)[:, None].expand(-1, k, -1).reshape(-1, n_max)
         held = _irls_weight(rows.gather(residual), rows.m, settings.loss, rows.per_block(state["torch"]))
     return torch.where((rows.owner % k == 0)[:, None], torch.minimum(weight, held), weight)
 
@@ -656,6 +654,30 @@ def _robust_loss(r: torch.Tensor, m: torch.Tensor, loss: str, cut: dict) -> torc
 
 
 @torch.no_grad()
+def _heldout_prediction(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
+                        fold: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each chart's heights and, at each point, the fold network that did not see it.
+
+    Parameters
+    ----------
+    nets : HeightFieldNets
+        Copies laid out as in :func:`fit_charts`.
+    x, t : (M, n, 2), (M, n) tensors
+        Every copy's points and heights.
+    fold : (C, n) int array
+        Fold of each point (fold network ``1 + fold`` of its chart never trained on it).
+
+    Returns
+    -------
+    z, heldout : (C, n) tensors
+    """
+    n_charts, n_max = fold.shape
+    pred = nets(x).reshape(n_charts, -1, n_max)
+    heldout = torch.gather(pred[:, 1:], 1, torch.as_tensor(fold, device=x.device)[:, None])[:, 0]
+    return t.reshape(n_charts, -1, n_max)[:, 0], heldout
+
+
+@torch.no_grad()
 def _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device) -> dict:
     """Held-out residuals, noise scale with bootstrap bound, and shrinking cut-offs per chart.
 
@@ -664,9 +686,7 @@ def _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, de
     """
     n_charts, n_max = valid.shape
     k = settings.n_folds + 1
-    pred = nets(x).reshape(n_charts, k, n_max).double().cpu().numpy()
-    z = t.reshape(n_charts, k, n_max)[:, 0].double().cpu().numpy()
-    heldout = np.take_along_axis(pred[:, 1:], fold[:, None], axis=1)[:, 0]
+    z, heldout = (v.double().cpu().numpy() for v in _heldout_prediction(nets, x, t, fold))
     residual = np.where(valid, z - heldout, np.nan)
     const = settings.constants
     sigma = np.empty(n_charts)
