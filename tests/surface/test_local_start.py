@@ -1,8 +1,9 @@
 """The high-breakdown start: local trimmed planes keep clustered one-sided outliers out."""
 
 import numpy as np
+import pytest
 
-from scanrig.surface.local_start import local_trimmed_planes, robust_start
+from scanrig.surface.local_start import local_trimmed_planes, robust_start, trimmed_planes
 
 from .conftest import SIGMA
 
@@ -52,3 +53,29 @@ def test_start_keeps_clustered_outliers_out_at_40_percent():
     far = bad & (np.abs(offset) >= 5 * SIGMA)  # nearer ones are indistinguishable from noise
     assert np.mean(good[far]) <= 0.05
     assert np.mean(good[~bad]) >= 0.85
+
+
+def _reference_trimmed_plane(du, zn, keep=0.5, steps=6):
+    """One set's LTS plane by the definition: concentration steps, each a least-squares fit of
+    the ceil(keep k) points of smallest residual (numpy lstsq)."""
+    k = len(zn)
+    h = min(k, max(4, int(np.ceil(keep * k))))
+    design = np.column_stack([np.ones(k), du])
+    coef = np.array([np.median(zn), 0.0, 0.0])
+    for _ in range(steps):
+        kept = np.argsort(np.abs(zn - design @ coef))[:h]
+        coef = np.linalg.lstsq(design[kept], zn[kept], rcond=None)[0]
+    return coef
+
+
+@pytest.mark.parametrize("k", [16, 24])  # the sizes used (start, sheets)
+def test_trimmed_planes_match_the_definition(k):
+    rng = np.random.default_rng(k)
+    du = rng.uniform(-1, 1, (200, k, 2))
+    zn = 0.3 * du[..., 0] - 0.1 * du[..., 1] + 0.2 + rng.normal(0, SIGMA, (200, k))
+    bad = rng.random((200, k)) < 0.3
+    zn[bad] += rng.uniform(5 * SIGMA, 0.5, bad.sum())
+    coef, _ = trimmed_planes(du, zn)
+    expected = np.array([_reference_trimmed_plane(d, z) for d, z in zip(du, zn)])
+    # the ridge of 1e-9 of the Gram trace shifts the solution by ~1e-8 (sigma is 1e-2)
+    np.testing.assert_allclose(coef, expected, atol=1e-6)

@@ -88,20 +88,22 @@ def trimmed_planes(du: np.ndarray, zn: np.ndarray, *, keep: float = 0.5,
         Scale of the kept residuals (Gaussian-consistent).
     """
     m, k = zn.shape
-    design = np.concatenate([np.ones((m, k, 1)), du], axis=2)
     h = min(k, max(4, int(np.ceil(keep * k))))
+    # the kept points' sums of 1, du, dv, du^2, du dv, dv^2, z, du z, dv z as masked sums of
+    # products formed once: no gather of the kept points (which took 3x as long for 200 000 sets)
+    u, v = du[..., 0], du[..., 1]
+    products = np.stack([np.ones_like(zn), u, v, u * u, u * v, v * v, zn, u * zn, v * zn], axis=1)  # (m, 9, k)
+    pairs = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
     coef = np.zeros((m, 3))
     coef[:, 0] = np.median(zn, axis=1)
-    ridge = 1e-9 * np.eye(3)
     for _ in range(steps):
-        r = zn - np.einsum("mki,mi->mk", design, coef)
-        kept = np.argsort(np.abs(r), axis=1)[:, :h]
-        a = np.take_along_axis(design, kept[..., None], axis=1)
-        b = np.take_along_axis(zn, kept, axis=1)
-        gram = np.einsum("mki,mkj->mij", a, a) + ridge * np.einsum("mki,mki->m", a, a)[:, None, None]
-        coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", a, b)[..., None])[..., 0]
-    r = zn - np.einsum("mki,mi->mk", design, coef)
-    r2 = np.sort(r * r, axis=1)[:, :h]
+        r2 = np.square(zn - coef[:, :1] - coef[:, 1:2] * u - coef[:, 2:] * v)
+        kept = r2 <= np.partition(r2, h - 1, axis=1)[:, h - 1:h]  # ties keep a few more
+        sums = np.matmul(products, kept[..., None].astype(float))[..., 0]  # 3x faster than einsum
+        gram = sums[:, pairs] + 1e-9 * (sums[:, 0] + sums[:, 3] + sums[:, 5])[:, None, None] * np.eye(3)
+        coef = np.linalg.solve(gram, sums[:, 6:, None])[..., 0]
+    r2 = np.square(zn - coef[:, :1] - coef[:, 1:2] * u - coef[:, 2:] * v)
+    r2 = np.partition(r2, h - 1, axis=1)[:, :h]
     q_local = 1.0 - h / k
     scale = np.sqrt(r2.mean(axis=1) / (trimmed_consistency(min(max(q_local, 1e-3), 0.5)) * (1.0 - 3.0 / h)))
     return coef, scale
