@@ -112,17 +112,17 @@ def test_with_point_sigma_no_point_moves_beyond_its_own_noise(seed):
     assert np.all(moved <= result.settings.constants.r * sigma * (1 + 1e-9))
 
 
-def test_a_chart_holding_a_step_is_halved_until_its_sides_fit():
+def test_a_chart_holding_a_step_is_split_into_sheets_and_both_sides_kept():
     # a floor and a plateau 20 mm (200 noise sigmas) up, no wall between them: one height field
-    # whose fit takes the plateau (35 % of the points) for a cluster of outliers, more than
-    # the q = 25 % it tolerates; halving the chart until each piece fits keeps both sides
-    # (one chart: 63 % inliers; after 6 rounds: 93-97 %, 97-99 % away from the step over six
-    # weight seeds: training is chaotic at the 1 % level here, so three seeds are averaged)
+    # whose single fit took the plateau (35 % of the points) for a cluster of outliers, more
+    # than the q = 25 % it tolerates (63 % inliers); halving the chart until each piece fitted
+    # kept 93-97 % (97-99 % away from the step); split into its two sheets: 99.9 % on three
+    # weight seeds, all of the points away from the step
     rng = np.random.default_rng(7)
     xy = rng.uniform(-0.1, 0.1, (3000, 2))
     points = np.column_stack([xy, 0.02 * (xy[:, 0] > 0.03) + rng.normal(0, NOISE, len(xy))])
     away = np.abs(xy[:, 0] - 0.03) > 0.01
-    results = [filter_points(points, rng=np.random.default_rng(seed), q=0.25, settings=FAST) for seed in range(3)]
-    assert all(len(result.charts) > 1 for result in results)
-    assert np.mean([result.inlier.mean() for result in results]) >= 0.93
-    assert np.mean([result.inlier[away].mean() for result in results]) >= 0.97
+    result = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST)
+    assert len(result.charts) == 2 and all(chart.claim is not None for chart in result.charts)
+    assert result.inlier.mean() >= 0.99
+    assert result.inlier[away].mean() >= 0.999

@@ -20,13 +20,56 @@ Splitting is recursive (our choice): a set of points becomes a chart when it has
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 #: Point sets this small are never split further (by :func:`split_charts` or the filter's refinement).
 MIN_CHART_POINTS = 64
+#: Sheet points that vote on which sheet owns a place (:class:`Claim`).
+CLAIM_NEIGHBOURS = 8
+
+
+@dataclass(frozen=True)
+class Claim:
+    """Where one sheet of a height field split at a step holds (see :mod:`scanrig.surface.sheets`).
+
+    A place in the height field's plane belongs to the sheet that holds most of the
+    ``CLAIM_NEIGHBOURS`` sheet points nearest to it in the plane (ties: the nearest point's
+    sheet), so a few stray points of one sheet inside another's place do not carve out an island.
+
+    Attributes
+    ----------
+    points : (n, 3) float array
+        The points of all sibling sheets, metres.
+    label : (n,) int array
+        Their sheets, ``0 .. n_sheets - 1``.
+    own : int
+        This sheet's label.
+    normal : (3,) float array
+        Unit normal of the height field that was split; places are positions across it.
+    """
+
+    points: np.ndarray
+    label: np.ndarray
+    own: int
+    normal: np.ndarray
+
+    def owner(self, points: np.ndarray) -> np.ndarray:
+        """``(m,)`` int: the sheet that owns the place of each of the ``(m, 3)`` points."""
+        def flat(p):
+            return p - np.outer(p @ self.normal, self.normal)
+
+        k = min(CLAIM_NEIGHBOURS, len(self.points))
+        nearest = cKDTree(flat(self.points)).query(flat(points), k=k)[1].reshape(len(points), k)
+        sheets = np.arange(self.label.max() + 1)
+        votes = (self.label[nearest][..., None] == sheets).sum(axis=1) + 0.5 * (self.label[nearest[:, 0], None] == sheets)
+        return np.argmax(votes, axis=1)
+
+    def holds(self, points: np.ndarray) -> np.ndarray:
+        """``(m,)`` bool: whether this sheet owns the place of each of the ``(m, 3)`` points."""
+        return self.owner(points) == self.own
 
 
 @dataclass(frozen=True)
@@ -52,6 +95,9 @@ class Chart:
         Indices of the points this chart owns.
     members : (n_members,) int array
         Core plus overlap points, the points the chart's network is fitted on.
+    claim : Claim or None
+        For one sheet of a height field split at a discontinuity: where it holds (None: all
+        of its reach).
     """
 
     origin: np.ndarray
@@ -61,6 +107,7 @@ class Chart:
     height_window: np.ndarray
     core: np.ndarray
     members: np.ndarray
+    claim: Claim | None = None
 
     def to_chart(self, points: np.ndarray) -> np.ndarray:
         """``(N, 3)`` points in the cloud frame -> ``(N, 3)`` ``(u, v, height)`` in metres."""
@@ -74,6 +121,11 @@ class Chart:
         """``(N,)`` bool: which points' heights lie in the chart's height window."""
         height = (points - self.origin) @ self.rotation[2]
         return (height >= self.height_window[0]) & (height <= self.height_window[1])
+
+    def holds(self, points: np.ndarray) -> np.ndarray:
+        """``(N,)`` bool: where the chart's surface holds (everywhere but its siblings' side, see
+        :class:`Claim`)."""
+        return np.ones(len(points), bool) if self.claim is None else self.claim.holds(points)
 
 
 def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -185,24 +237,60 @@ def _charts_from_cores(points: np.ndarray, normals: np.ndarray, cores: list[np.n
     tree = cKDTree(points)
     charts = []
     for core in cores:
-        origin, rotation = _frame(points[core])
-        local = (points[core] - origin) @ rotation.T
-        radius = float(np.max(np.linalg.norm(local[:, :2], axis=1)))
-        low, high = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
-        widen = overlap * (high - low) / 2 + 1e-9 * max(radius, 1e-300)
-        reach = np.column_stack([low - widen, high + widen])
-        h_low, h_high = np.quantile(local[:, 2], [q / 2, 1 - q / 2])
-        window = np.array([h_low, h_high]) + np.array([-1.0, 1.0]) * widen.max()
-        corner = np.abs(reach).max(axis=1)
-        near = np.asarray(tree.query_ball_point(origin, np.linalg.norm([*corner, np.abs(window).max()])),
+        chart = chart_from_core(points, normals, core, core, q=q, cos_max=cos_max, overlap=overlap)
+        corner = np.abs(chart.reach).max(axis=1)
+        near = np.asarray(tree.query_ball_point(chart.origin, np.linalg.norm([*corner, np.abs(chart.height_window).max()])),
                           dtype=int)
-        near_local = (points[near] - origin) @ rotation.T
-        keep = (np.all((near_local[:, :2] >= reach[:, 0]) & (near_local[:, :2] <= reach[:, 1]), axis=1)
-                & (np.abs(normals[near] @ rotation[2]) >= cos_max)
-                & (near_local[:, 2] >= window[0]) & (near_local[:, 2] <= window[1]))
-        members = np.union1d(core, near[keep])
-        charts.append(Chart(origin, rotation, radius, reach, window, core, members))
+        charts.append(replace(chart, members=np.union1d(core, _members(chart, points[near], normals[near], near,
+                                                                         cos_max))))
     return charts
+
+
+def chart_from_core(points: np.ndarray, normals: np.ndarray, core: np.ndarray, candidates: np.ndarray, *,
+                    q: float, cos_max: float, overlap: float, claim: Claim | None = None) -> Chart:
+    """The chart that owns ``core``: frame, radius, reach and height window from the core (see
+    :func:`split_charts`); members the core and the ``candidates`` in the reach and the window
+    whose normals agree.
+
+    Parameters
+    ----------
+    points, normals : (N, 3) float arrays
+    core : (n,) int array
+        Indices of the points the chart owns.
+    candidates : (m,) int array
+        Indices of the points that may become members.
+    q, overlap
+        As in :func:`split_charts`.
+    cos_max : float
+        Cosine of ``max_angle``.
+    claim : Claim, optional
+        Where the chart's surface holds (sheets of one height field, :mod:`scanrig.surface.sheets`).
+
+    Returns
+    -------
+    Chart
+    """
+    origin, rotation = _frame(points[core])
+    local = (points[core] - origin) @ rotation.T
+    radius = float(np.max(np.linalg.norm(local[:, :2], axis=1)))
+    low, high = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
+    widen = overlap * (high - low) / 2 + 1e-9 * max(radius, 1e-300)
+    reach = np.column_stack([low - widen, high + widen])
+    h_low, h_high = np.quantile(local[:, 2], [q / 2, 1 - q / 2])
+    window = np.array([h_low, h_high]) + np.array([-1.0, 1.0]) * widen.max()
+    chart = Chart(origin, rotation, radius, reach, window, core, core, claim)
+    return replace(chart, members=np.union1d(core, _members(chart, points[candidates], normals[candidates],
+                                                            candidates, cos_max)))
+
+
+def _members(chart: Chart, points: np.ndarray, normals: np.ndarray, index: np.ndarray,
+             cos_max: float) -> np.ndarray:
+    """The ``index`` of the ``(m, 3)`` points in the chart's reach and window whose normals agree."""
+    local = chart.to_chart(points)
+    keep = (np.all((local[:, :2] >= chart.reach[:, 0]) & (local[:, :2] <= chart.reach[:, 1]), axis=1)
+            & (np.abs(normals @ chart.rotation[2]) >= cos_max)
+            & (local[:, 2] >= chart.height_window[0]) & (local[:, 2] <= chart.height_window[1]))
+    return index[keep]
 
 
 def blend_weights(chart: Chart, points: np.ndarray) -> np.ndarray:

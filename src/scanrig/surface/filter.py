@@ -13,6 +13,7 @@ from scanrig.surface.charts import (MIN_CHART_POINTS, Chart, blend_weights, esti
 from scanrig.surface.hampel import check_q
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
+from scanrig.surface.sheets import split_sheets
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
@@ -75,7 +76,8 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     ----------
     points : (N, 3) float array
         Measured points, metres. Any closed or open surface: it is split into height-field
-        charts (:func:`~scanrig.surface.charts.split_charts`).
+        charts (:func:`~scanrig.surface.charts.split_charts`), and a chart holding a step into
+        its sheets (:func:`~scanrig.surface.sheets.split_sheets`).
     rng : numpy.random.Generator
         Seeds network weights, folds and bootstraps.
     q : float
@@ -133,16 +135,20 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     keep_freed_memory()
 
     normals = estimate_normals(points)
-    charts = split_charts(points, normals, max_points=max_chart_points, q=q)
+    r = settings.constants.r
+    charts = split_sheets(points, normals, split_charts(points, normals, max_points=max_chart_points, q=q),
+                          q=q, cut=r)
     fits, uv_scale, z_scale = _fit(points, charts, settings, rng, train_mask, sigma_floor, device)
     for _ in range(REFINE_ROUNDS):
-        # a chart that cannot follow its surface (a height field holding a step, or the tops of
-        # two objects and the floor between them) is halved and refitted
+        # a chart that cannot follow its surface (a side of a step too small to be a sheet, a
+        # network that failed) is halved and refitted
         loose = _loose_charts(charts, fits, z_scale, settings, sigma_floor, point_sigma)
         loose &= np.array([len(c.core) >= 2 * MIN_CHART_POINTS for c in charts])
         if not loose.any():
             break
-        halves = halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q)
+        halves = split_sheets(points, normals,
+                              halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q),
+                              q=q, cut=r)
         new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device)
         keep = np.flatnonzero(~loose)
         fits = concatenate_fits([fits, new_fits], np.concatenate([keep, len(charts) + np.arange(len(halves))]))
@@ -278,8 +284,10 @@ def project_on_surface(result: FilterResult, points: np.ndarray) -> np.ndarray:
     """Project arbitrary points on the fitted surface along the normals of the charts near them.
 
     Each chart whose reach (see :func:`~scanrig.surface.charts.blend_weights`) and height window
-    cover a point projects it along its normal; the projections are blended with the same partition of unity
-    as the input points. A point outside every reach uses the chart with the nearest origin.
+    cover a point, and that holds there (:meth:`~scanrig.surface.charts.Chart.holds`: at a step,
+    only the sheet that owns the point's place in the plane), projects it along its normal; the
+    projections are blended with the same partition of unity as the input points. A point
+    outside every reach uses the chart with the nearest origin.
 
     Parameters
     ----------
@@ -293,7 +301,8 @@ def project_on_surface(result: FilterResult, points: np.ndarray) -> np.ndarray:
         Points on the fitted surface, metres.
     """
     points = check_points(points, 3, "points")
-    weights = np.stack([blend_weights(c, points) * c.in_window(points) for c in result.charts])  # (C, m)
+    weights = np.stack([blend_weights(c, points) * c.in_window(points) * c.holds(points)
+                        for c in result.charts])  # (C, m)
     nearest = np.argmin(np.stack([np.linalg.norm(points - c.origin, axis=1) for c in result.charts]), axis=0)
     uncovered = weights.sum(axis=0) <= 0
     weights[nearest[uncovered], np.flatnonzero(uncovered)] = 1.0

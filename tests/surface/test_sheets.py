@@ -1,0 +1,108 @@
+"""Charts holding a step are split into sheets fitted separately."""
+
+import numpy as np
+
+from scanrig.surface import filter_points
+from scanrig.surface.charts import Claim, estimate_normals, split_charts
+from scanrig.surface.filter import project_on_surface
+from scanrig.surface.sheets import sheet_labels, split_sheets
+
+from .conftest import FAST, SIGMA
+
+STEP = 20 * SIGMA  # step height, metres
+N_SIDE = 48
+SPACING = 2.0 / (N_SIDE - 1)
+
+
+def step_grid(rng, n_ghosts=0):
+    """Grid over [-1, 1]^2 on z = STEP where x > 0.05 (0 elsewhere), noise SIGMA, and
+    ``n_ghosts`` edge ghosts within one spacing of the step at heights lam * STEP, lam ~ U(0, 1).
+
+    Returns points (N, 3), upper side (N,) bool, ghost mask (N,).
+    """
+    g = np.linspace(-1, 1, N_SIDE)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    upper = x > 0.05
+    z = STEP * upper + rng.normal(0, SIGMA, x.size)
+    ghost = np.zeros(x.size, bool)
+    edge = np.flatnonzero(np.abs(x - 0.05) <= SPACING)
+    ghost[rng.choice(edge, n_ghosts, replace=False)] = True
+    z[ghost] = rng.uniform(0, STEP, n_ghosts)
+    return np.column_stack([x, y, z]), upper, ghost
+
+
+def test_a_step_is_two_sheets_and_a_crease_or_a_saddle_one():
+    rng = np.random.default_rng(5)
+    points, upper, _ = step_grid(rng)
+    label = sheet_labels(points[:, :2], points[:, 2], q=0.25, cut=4.0)
+    sheets = np.unique(label[label >= 0])
+    assert len(sheets) == 2
+    assert np.mean(label >= 0) >= 0.97  # nearly every point is on a surface
+    for sheet in sheets:  # each sheet lies on one side
+        assert len(np.unique(upper[label == sheet])) == 1
+    xy = points[:, :2]
+    for z in (0.4 * np.abs(xy[:, 0] - 0.1), 0.5 * (xy[:, 0] ** 2 - xy[:, 1] ** 2)):
+        label = sheet_labels(xy, z + rng.normal(0, SIGMA, len(z)), q=0.25, cut=4.0)
+        assert len(np.unique(label[label >= 0])) == 1
+
+
+def test_edge_ghosts_between_the_levels_do_not_bridge_them():
+    # half of the points within one spacing of the step are ghosts at every height between
+    # the two levels; each lies near the plane of one level at most, so it cannot link them
+    points, upper, ghost = step_grid(np.random.default_rng(6), n_ghosts=N_SIDE * 2)
+    label = sheet_labels(points[:, :2], points[:, 2], q=0.25, cut=4.0)
+    big = [s for s in np.unique(label[label >= 0]) if np.sum(label == s) >= 64]
+    assert len(big) == 2
+    for sheet in big:
+        assert len(np.unique(upper[(label == sheet) & ~ghost])) == 1
+
+
+def test_sheets_partition_the_chart_and_claim_their_own_side():
+    rng = np.random.default_rng(7)
+    points, upper, ghost = step_grid(rng, n_ghosts=N_SIDE)
+    normals = estimate_normals(points)
+    charts = split_charts(points, normals, max_points=len(points), q=0.25)
+    assert len(charts) == 1
+    sheets = split_sheets(points, normals, charts, q=0.25, cut=4.0)
+    assert len(sheets) == 2
+    np.testing.assert_array_equal(np.sort(np.concatenate([s.core for s in sheets])), np.arange(len(points)))
+    for sheet in sheets:
+        side = upper[sheet.members[~ghost[sheet.members]]]
+        assert len(np.unique(side)) == 1  # true points of one level only
+        # the sheet holds on its own side, away from the step
+        probe = points[(upper == side[0]) & (np.abs(points[:, 0] - 0.05) > 2 * SPACING)]
+        assert np.all(sheet.holds(probe))
+        other = points[(upper != side[0]) & (np.abs(points[:, 0] - 0.05) > 2 * SPACING)]
+        assert not np.any(sheet.holds(other))
+
+
+def test_a_few_stray_points_of_a_sheet_do_not_claim_a_place():
+    # two sheets side by side, and two points of sheet 1 deep inside sheet 0's half: the
+    # places around them stay sheet 0's (most of the nearest sheet points vote for it)
+    g = np.linspace(0, 1, 20)
+    xy = np.column_stack([a.ravel() for a in np.meshgrid(g, g)])
+    label = (xy[:, 0] > 0.5).astype(int)
+    label[[45, 46]] = 1
+    claim = Claim(np.column_stack([xy, np.zeros(len(xy))]), label, 0, np.array([0.0, 0.0, 1.0]))
+    probe = np.column_stack([xy[[45, 46]] + 0.01, [0.3, -0.3]])  # heights do not matter
+    assert np.all(claim.holds(probe))
+    np.testing.assert_array_equal(claim.owner(np.array([[0.2, 0.5, 0.0], [0.8, 0.5, 0.0]])), [0, 1])
+
+
+def test_the_filter_keeps_a_step_sharp_and_its_neighbours():
+    # one smooth network drew a ramp over 3-4 spacings, flagged the true points next to the
+    # step (beyond its rejection point) and kept the ghosts on the ramp; the sheets are fitted
+    # separately, so the fitted step is as sharp as the sampling allows
+    rng = np.random.default_rng(8)
+    points, upper, ghost = step_grid(rng, n_ghosts=N_SIDE // 2)
+    result = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST)
+    far = ghost & (np.minimum(points[:, 2], STEP - points[:, 2]) >= 5 * SIGMA)
+    assert np.mean(~result.inlier[far]) >= 0.95
+    assert np.mean(~result.inlier[~ghost]) <= 0.01
+    s = np.linspace(-0.3, 0.3, 601)
+    probe = np.column_stack([0.05 + s, np.full_like(s, 0.1), np.full_like(s, STEP / 2)])
+    level = project_on_surface(result, probe)[:, 2] / STEP
+    rising = s[(level > 0.1) & (level < 0.9)]
+    assert rising.size == 0 or np.ptp(rising) <= SPACING
+    # the transition lies between the last sample of the low side and the first of the high one
+    assert abs(s[np.argmin(np.abs(level - 0.5))]) <= SPACING
