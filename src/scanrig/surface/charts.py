@@ -64,7 +64,8 @@ class Claim:
         k = min(CLAIM_NEIGHBOURS, len(self.points))
         nearest = cKDTree(flat(self.points)).query(flat(points), k=k)[1].reshape(len(points), k)
         sheets = np.arange(self.label.max() + 1)
-        votes = (self.label[nearest][..., None] == sheets).sum(axis=1) + 0.5 * (self.label[nearest[:, 0], None] == sheets)
+        votes = ((self.label[nearest][..., None] == sheets).sum(axis=1)
+                 + 0.5 * (self.label[nearest[:, 0], None] == sheets))  # ties: the nearest point's sheet
         return np.argmax(votes, axis=1)
 
     def holds(self, points: np.ndarray) -> np.ndarray:
@@ -237,12 +238,11 @@ def _charts_from_cores(points: np.ndarray, normals: np.ndarray, cores: list[np.n
     tree = cKDTree(points)
     charts = []
     for core in cores:
-        chart = chart_from_core(points, normals, core, core, q=q, cos_max=cos_max, overlap=overlap)
+        chart = _bare_chart(points, core, q=q, overlap=overlap)
         corner = np.abs(chart.reach).max(axis=1)
-        near = np.asarray(tree.query_ball_point(chart.origin, np.linalg.norm([*corner, np.abs(chart.height_window).max()])),
-                          dtype=int)
-        charts.append(replace(chart, members=np.union1d(core, _members(chart, points[near], normals[near], near,
-                                                                         cos_max))))
+        radius = np.linalg.norm([*corner, np.abs(chart.height_window).max()])
+        near = np.asarray(tree.query_ball_point(chart.origin, radius), dtype=int)
+        charts.append(_with_members(chart, points, normals, near, cos_max))
     return charts
 
 
@@ -270,6 +270,13 @@ def chart_from_core(points: np.ndarray, normals: np.ndarray, core: np.ndarray, c
     -------
     Chart
     """
+    return _with_members(_bare_chart(points, core, q=q, overlap=overlap, claim=claim), points, normals,
+                         candidates, cos_max)
+
+
+def _bare_chart(points: np.ndarray, core: np.ndarray, *, q: float, overlap: float,
+                claim: Claim | None = None) -> Chart:
+    """Frame, radius, reach and height window of ``core``; its members only the core."""
     origin, rotation = _frame(points[core])
     local = (points[core] - origin) @ rotation.T
     radius = float(np.max(np.linalg.norm(local[:, :2], axis=1)))
@@ -278,19 +285,17 @@ def chart_from_core(points: np.ndarray, normals: np.ndarray, core: np.ndarray, c
     reach = np.column_stack([low - widen, high + widen])
     h_low, h_high = np.quantile(local[:, 2], [q / 2, 1 - q / 2])
     window = np.array([h_low, h_high]) + np.array([-1.0, 1.0]) * widen.max()
-    chart = Chart(origin, rotation, radius, reach, window, core, core, claim)
-    return replace(chart, members=np.union1d(core, _members(chart, points[candidates], normals[candidates],
-                                                            candidates, cos_max)))
+    return Chart(origin, rotation, radius, reach, window, core, core, claim)
 
 
-def _members(chart: Chart, points: np.ndarray, normals: np.ndarray, index: np.ndarray,
-             cos_max: float) -> np.ndarray:
-    """The ``index`` of the ``(m, 3)`` points in the chart's reach and window whose normals agree."""
-    local = chart.to_chart(points)
+def _with_members(chart: Chart, points: np.ndarray, normals: np.ndarray, candidates: np.ndarray,
+                  cos_max: float) -> Chart:
+    """``chart`` with the core and the ``candidates`` in its reach and window whose normals agree as members."""
+    local = chart.to_chart(points[candidates])
     keep = (np.all((local[:, :2] >= chart.reach[:, 0]) & (local[:, :2] <= chart.reach[:, 1]), axis=1)
-            & (np.abs(normals @ chart.rotation[2]) >= cos_max)
+            & (np.abs(normals[candidates] @ chart.rotation[2]) >= cos_max)
             & (local[:, 2] >= chart.height_window[0]) & (local[:, 2] <= chart.height_window[1]))
-    return index[keep]
+    return replace(chart, members=np.union1d(chart.core, candidates[keep]))
 
 
 def blend_weights(chart: Chart, points: np.ndarray) -> np.ndarray:
