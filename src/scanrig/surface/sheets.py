@@ -1,7 +1,7 @@
 """Split height-field charts at steps into sheets that are fitted separately.
 
-A network is a smooth function: across a step it draws a ramp three to four sample spacings wide
-(the oracle, trained on the true points only, two), the true points next to the step lie beyond
+A network is a smooth function: across a step it drew a ramp 3-5 sample spacings wide (the
+oracle, trained on the true points only, about two), the true points next to the step lie beyond
 its rejection point and are flagged, and edge ghosts between the two levels lie on the ramp and
 are kept. A chart holding a step is therefore cut into *sheets* (our choice):
 
@@ -19,10 +19,10 @@ are kept. A chart holding a step is therefore cut into *sheets* (our choice):
    chart plane (:class:`~scanrig.surface.charts.Claim`: most of its nearest sheet points are
    that sheet's). A height field has one surface over each place: an edge ghost on the low
    side of a step joins the low sheet and is judged by its fit, even when its height is near
-   the high level (joining the sheet whose plane is nearest in height kept such ghosts:
-   recall of the ghosts 0.93-0.96 instead of 0.95-0.99 on the step at 10-40 % outliers). Each sheet
-   becomes a chart of its own, with its own frame, reach and window and members from its own
-   place only; its :class:`~scanrig.surface.charts.Claim` keeps its extrapolation across the
+   the high level (joining the sheet whose plane is nearest in height kept such ghosts: recall
+   of the outliers 0.93-0.98 instead of 0.95-0.99 on the step at 10-40 %, two seeds). Each
+   sheet becomes a chart of its own, with its own frame, reach and window and members from its
+   own place only; its :class:`~scanrig.surface.charts.Claim` keeps its extrapolation across the
    step out of :func:`~scanrig.surface.filter.project_on_surface`.
 
 Outliers are rarely on a surface (uniform gross errors are isolated, a patch of reflections
