@@ -94,16 +94,19 @@ def trimmed_planes(du: np.ndarray, zn: np.ndarray, *, keep: float = 0.5,
     u, v = du[..., 0], du[..., 1]
     products = np.stack([np.ones_like(zn), u, v, u * u, u * v, v * v, zn, u * zn, v * zn], axis=1)  # (m, 9, k)
     pairs = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
+
+    def squared_residuals(coef):
+        return np.square(zn - coef[:, :1] - coef[:, 1:2] * u - coef[:, 2:] * v)
+
     coef = np.zeros((m, 3))
     coef[:, 0] = np.median(zn, axis=1)
     for _ in range(steps):
-        r2 = np.square(zn - coef[:, :1] - coef[:, 1:2] * u - coef[:, 2:] * v)
+        r2 = squared_residuals(coef)
         kept = r2 <= np.partition(r2, h - 1, axis=1)[:, h - 1:h]  # ties keep a few more
         sums = np.matmul(products, kept[..., None].astype(float))[..., 0]  # 3x faster than einsum
         gram = sums[:, pairs] + 1e-9 * (sums[:, 0] + sums[:, 3] + sums[:, 5])[:, None, None] * np.eye(3)
         coef = np.linalg.solve(gram, sums[:, 6:, None])[..., 0]
-    r2 = np.square(zn - coef[:, :1] - coef[:, 1:2] * u - coef[:, 2:] * v)
-    r2 = np.partition(r2, h - 1, axis=1)[:, :h]
+    r2 = np.partition(squared_residuals(coef), h - 1, axis=1)[:, :h]
     q_local = 1.0 - h / k
     scale = np.sqrt(r2.mean(axis=1) / (trimmed_consistency(min(max(q_local, 1e-3), 0.5)) * (1.0 - 3.0 / h)))
     return coef, scale
