@@ -39,27 +39,49 @@ def local_trimmed_planes(uv: np.ndarray, z: np.ndarray, *, k: int = 24, keep: fl
 
     Parameters
     ----------
-    uv : (m, 2) float array
-        Chart coordinates.
-    z : (m,) float array
-        Heights.
-    k : int
-        Neighbours (the point itself excluded), clipped to ``m - 1``.
-    steps : int
-        Concentration steps.
+    uv, z, k, keep, steps
+        As in :func:`neighbour_planes`.
 
     Returns
     -------
     residual : (m,) float array
         ``z`` minus the plane of the point's neighbours at the point.
     scale : (m,) float array
+        As in :func:`neighbour_planes`.
+    """
+    _, coef, scale = neighbour_planes(uv, z, k=k, keep=keep, steps=steps)
+    return z - coef[:, 0], scale
+
+
+def neighbour_planes(uv: np.ndarray, z: np.ndarray, *, k: int, keep: float = 0.5,
+                     steps: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-trimmed-squares plane of every point's ``k`` nearest neighbours (itself left out).
+
+    Parameters
+    ----------
+    uv : (m, 2) float array
+        Chart coordinates.
+    z : (m,) float array
+        Heights.
+    k : int
+        Neighbours, clipped to ``[3, m - 1]``.
+    keep, steps
+        As in :func:`trimmed_planes`.
+
+    Returns
+    -------
+    neighbours : (m, k) int array
+        Each point's neighbours, nearest first.
+    planes : (m, 3) float array
+        ``(height at the point, slope along u, slope along v)``.
+    scale : (m,) float array
         Scale of the kept half of the neighbours' residuals (Gaussian-consistent).
     """
     k = max(3, min(k, len(z) - 1))
     _, idx = cKDTree(uv).query(uv, k=k + 1)
     nb = idx[:, 1:]
-    coef, scale = trimmed_planes(uv[nb] - uv[:, None, :], z[nb], keep=keep, steps=steps)
-    return z - coef[:, 0], scale
+    planes, scale = trimmed_planes(uv[nb] - uv[:, None, :], z[nb], keep=keep, steps=steps)
+    return nb, planes, scale
 
 
 def trimmed_planes(du: np.ndarray, zn: np.ndarray, *, keep: float = 0.5,

@@ -546,7 +546,7 @@ def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tens
     -------
     (V, L) float64 tensor
     """
-    n_charts, n_max = fold.shape
+    n_max = fold.shape[1]
     k = settings.n_folds + 1
     with torch.no_grad():
         z, heldout = _heldout_prediction(nets, x, t, fold)

@@ -37,11 +37,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from scanrig.surface.charts import MIN_CHART_POINTS, Chart, Claim, chart_from_core
 from scanrig.surface.hampel import trimmed_scale
-from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, trimmed_planes
+from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, neighbour_planes
 
 #: Neighbours of each point that it may be linked to.
 LINK_NEIGHBOURS = 8
@@ -99,15 +98,12 @@ def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int 
         Component of each point on a surface; -1 for points not on a surface.
     """
     m = len(h)
-    k = max(3, min(k, m - 1))
-    _, idx = cKDTree(uv).query(uv, k=k + 1)
-    nb = idx[:, 1:]
-    planes, scale = trimmed_planes(uv[nb] - uv[:, None, :], h[nb])
+    nb, planes, scale = neighbour_planes(uv, h, k=k)
     residual = h - planes[:, 0]
     sigma = trimmed_scale(residual, q)
     on_surface = (np.abs(residual) <= cut * sigma) & (scale <= SURFACE_SCALE_FACTOR * sigma)
-    i = np.repeat(np.arange(m), min(LINK_NEIGHBOURS, k))
-    j = nb[:, :LINK_NEIGHBOURS].ravel()
+    candidates = nb[:, :LINK_NEIGHBOURS]
+    i, j = np.repeat(np.arange(m), candidates.shape[1]), candidates.ravel()
     link = (on_surface[i] & on_surface[j] & (np.abs(_plane_gap(planes[i], uv[i], uv[j], h[j])) <= cut * sigma)
             & (np.abs(_plane_gap(planes[j], uv[j], uv[i], h[i])) <= cut * sigma))
     graph = coo_matrix((np.ones(int(link.sum())), (i[link], j[link])), shape=(m, m))
