@@ -26,7 +26,7 @@ def test_copies_are_independent_and_output_layer_is_linear_in_features(architect
     assert z.shape == (3, 7)
     coef = torch.randn(3, 6, generator=gen)
     nets.set_output(coef)
-    expected = torch.bmm(nets.features(uv), coef[..., None])[..., 0]
+    expected = (nets.features(uv) * coef[:, :-1, None]).sum(dim=1) + coef[:, -1:]
     torch.testing.assert_close(nets(uv), expected)
     # changing copy 0's input does not change copies 1 and 2
     uv2 = uv.clone()
@@ -88,12 +88,13 @@ def test_size_batches_partition_the_charts_at_least_cost(size_list, overhead):
 
 def test_weighted_solve_matches_numpy_least_squares():
     gen = torch.Generator().manual_seed(3)
-    feats = torch.rand(4, 50, 6, generator=gen)  # copy c's points in blocks 2c and 2c + 1
+    feats = torch.rand(4, 5, 50, generator=gen)  # copy c's points in blocks 2c and 2c + 1
     t = torch.randn(4, 50, generator=gen)
     weight = torch.rand(4, 50, generator=gen, dtype=torch.float64)
     coef = _weighted_solve(feats, t, weight, torch.tensor([0, 0, 1, 1]), 2).numpy()
     for c in range(2):
-        f = feats[2 * c: 2 * c + 2].reshape(-1, 6).double().numpy()
+        f = feats[2 * c: 2 * c + 2].transpose(1, 2).reshape(-1, 5).double().numpy()
+        f = np.column_stack([f, np.ones(len(f))])  # the bias
         w = np.sqrt(weight[2 * c: 2 * c + 2].reshape(-1).numpy())
         expected = np.linalg.lstsq(f * w[:, None], t[2 * c: 2 * c + 2].reshape(-1).double().numpy() * w, rcond=None)[0]
         np.testing.assert_allclose(coef[c], expected, rtol=1e-6, atol=1e-8)

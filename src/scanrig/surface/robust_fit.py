@@ -595,36 +595,50 @@ def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitS
 
 def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, weight: torch.Tensor, owner: torch.Tensor,
                     n_copies: int) -> torch.Tensor:
-    """Weighted least-squares output layer of every copy: (M, H + 1) float64, no gradient.
+    """Weighted least-squares output layer of every copy: (M, H + 1) float64 (last = bias), no gradient.
 
-    Solves ``(F^T W F + lambda I) c = F^T W t`` in float64, summing the normal equations of each
-    copy's blocks, with a tiny ridge ``lambda`` relative to the trace for copies whose features
-    are nearly collinear. Not in float32: a trained network's features are so nearly collinear
-    that float32 normal equations (relative error ~3e-7) put the least-squares fit of a clean
-    64 x 64 sphere cap at 1.3 sigma instead of 0.15 sigma.
+    Solves ``(F^T W F + lambda I) c = F^T W t`` for the features ``F`` with a constant column,
+    in float64, summing the normal equations of each copy's blocks, with a tiny ridge
+    ``lambda`` relative to the trace for copies whose features are nearly collinear. Not in
+    float32: a trained network's features are so nearly collinear that float32 normal
+    equations (relative error ~3e-7) put the least-squares fit of a clean 64 x 64 sphere cap at
+    1.3 sigma instead of 0.15 sigma.
+
+    Parameters
+    ----------
+    feats : (V, H, L) tensor
+        Unit-major features of each block (:meth:`HeightFieldNets.features`).
+    t : (V, L) tensor
+        Target heights.
+    weight : (V, L) float64 tensor
+    owner : (V,) int tensor
+        Copy of each block.
+    n_copies : int
     """
-    # one product gives the normal matrix and the right-hand side: [F t]^T W [F t], with the
+    # one product gives the normal matrix and the right-hand side: [F 1 t]^T W [F 1 t], with the
     # points along the contiguous axis (a third faster than F^T (W F) plus F^T (W t))
-    size = feats.shape[-1]
-    aug = torch.empty(feats.shape[0], size + 1, feats.shape[1], dtype=torch.float64, device=feats.device)
-    aug[:, :size].copy_(feats.detach().transpose(1, 2))
-    aug[:, size].copy_(t)
+    n_blocks, size, _ = feats.shape
+    aug = torch.empty(n_blocks, size + 2, feats.shape[2], dtype=torch.float64, device=feats.device)
+    aug[:, :size].copy_(feats.detach())
+    aug[:, size] = 1.0
+    aug[:, size + 1].copy_(t)
     aug.mul_(weight.sqrt()[:, None, :])
-    normal = torch.zeros(n_copies, size + 1, size + 1, dtype=aug.dtype, device=aug.device).index_add_(
+    normal = torch.zeros(n_copies, size + 2, size + 2, dtype=aug.dtype, device=aug.device).index_add_(
         0, owner, aug @ aug.transpose(1, 2))
-    gram, rhs = normal[:, :size, :size], normal[:, :size, size]
+    gram, rhs = normal[:, :size + 1, :size + 1], normal[:, :size + 1, size + 1]
     ridge = 1e-9 * gram.diagonal(dim1=1, dim2=2).sum(dim=1).clamp(min=1e-12)
-    gram = gram + ridge[:, None, None] * torch.eye(size, dtype=gram.dtype, device=gram.device)
+    gram = gram + ridge[:, None, None] * torch.eye(size + 1, dtype=gram.dtype, device=gram.device)
     return torch.linalg.solve(gram, rhs)
 
 
 def _output(feats: torch.Tensor, coef: torch.Tensor) -> torch.Tensor:
-    """Output layer ``feats @ coef`` per block: (V, L, H + 1), (V, H + 1) -> (V, L) float32.
+    """Output layer per block: features (V, H, L), coefficients (V, H + 1) -> heights (V, L) float32.
 
     A broadcast product and sum: a batched matrix-vector ``bmm`` and its backward took 1.7x as
     long (measured, torch 2.13 on CPU).
     """
-    return (feats * coef.float()[:, None, :]).sum(dim=-1)
+    coef = coef.float()
+    return (feats * coef[:, :-1, None]).sum(dim=1) + coef[:, -1:]
 
 
 def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, cuts: dict) -> torch.Tensor:
