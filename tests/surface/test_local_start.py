@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from scanrig.surface.local_start import local_trimmed_planes, robust_start, trimmed_planes
+from scanrig.surface.local_start import fill_with_quadratic, local_trimmed_planes, robust_start, trimmed_planes
 
 from .conftest import SIGMA
 
@@ -79,3 +79,31 @@ def test_trimmed_planes_match_the_definition(k):
     expected = np.array([_reference_trimmed_plane(d, z) for d, z in zip(du, zn)])
     # the ridge of 1e-9 of the Gram trace shifts the solution by ~1e-8 (sigma is 1e-2)
     np.testing.assert_allclose(coef, expected, atol=1e-6)
+
+
+def test_fill_keeps_good_heights_and_puts_the_quadratic_in_the_holes():
+    # a saddle with a hole of outliers over its corner, as a cluster of reflections at a chart's
+    # border: the fill there is the quadratic through the good points (exact for a quadratic)
+    rng = np.random.default_rng(4)
+    uv = rng.uniform(-1, 1, (2, 500, 2))
+    true = 0.5 * (uv[..., 0] ** 2 - uv[..., 1] ** 2) + 0.1 * uv[..., 0]
+    z = true + rng.normal(0, SIGMA, true.shape)
+    good = ~((uv[..., 0] < -0.5) & (uv[..., 1] < -0.5))
+    z[~good] += 0.3
+    valid = np.ones(true.shape, bool)
+    valid[1, 450:] = False  # padding of the second chart
+    filled = fill_with_quadratic(uv, z, valid, good)
+    np.testing.assert_array_equal(filled[good & valid], z[good & valid])
+    hole = ~good & valid
+    # least squares through n noisy points: the quadratic is off by ~sigma sqrt(6/n) inside, a few
+    # times that where it extrapolates into the corner
+    assert np.sqrt(np.mean((filled[hole] - true[hole]) ** 2)) < 0.5 * SIGMA
+
+
+def test_fill_of_a_chart_with_too_few_good_points_is_finite():
+    uv = np.array([[[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [0.2, 0.7]]])  # three good points on a line
+    z = np.array([[1.0, 1.5, 2.0, 9.0]])
+    good = np.array([[True, True, True, False]])
+    filled = fill_with_quadratic(uv, z, np.ones_like(good), good)
+    assert np.all(np.isfinite(filled))
+    np.testing.assert_allclose(filled[0, :3], z[0, :3])

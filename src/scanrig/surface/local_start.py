@@ -18,8 +18,11 @@ choice, after the first stage of Sinha & Schunck's two-stage robust surface reco
    bound) of the held-out residuals; a point starts as good when its residual is within the
    Hampel rejection point and its neighbourhood is a surface.
 
-The network then interpolates across what the start leaves out (clusters, edges) from the good
-points around it.
+The network's first epochs train on the good points and, in place of every other point, on the
+chart's least-squares quadratic through the good points (:func:`fill_with_quadratic`): a network
+trained on the good points alone extrapolates freely into the holes the start leaves (clusters,
+edges), and where a hole reaches the chart's border it can start many noise scales away from the
+true points there, which the redescending loss then never takes back.
 """
 
 from __future__ import annotations
@@ -172,3 +175,36 @@ def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, 
                                         alpha=alpha)
         good[c, :m] = (np.abs(residual) <= cut * sigma_upper[c]) & (scale <= SURFACE_SCALE_FACTOR * sigma_upper[c])
     return good, sigma_upper
+
+
+def fill_with_quadratic(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, good: np.ndarray) -> np.ndarray:
+    """Heights of the good points, and the chart's quadratic through them at every other point.
+
+    The quadratic ``h = c0 + c1 u + c2 v + c3 u^2 + c4 u v + c5 v^2`` is each chart's least-squares
+    fit to its good points; it fills the holes of the start with the smoothest plausible surface
+    (measured over the 24 protocol cells and three weight seeds: mean robust error 1.021 times
+    the oracle's instead of 1.037; sphere cap at 40 % outliers at worst 1.06 instead of 1.47,
+    saddle 1.06 instead of 1.54).
+
+    Parameters
+    ----------
+    uv : (C, n, 2) float array
+        Normalised chart coordinates.
+    z : (C, n) float array
+    valid, good : (C, n) bool arrays
+        Real points; points the start trusts.
+
+    Returns
+    -------
+    (C, n) float array
+        ``z`` where ``good``, the quadratic elsewhere (padding included).
+    """
+    u, v = uv[..., 0], uv[..., 1]
+    basis = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (C, n, 6)
+    w = (good & valid).astype(float)
+    gram = np.einsum("cni,cn,cnj->cij", basis, w, basis)
+    rhs = np.einsum("cni,cn,cn->ci", basis, w, z)
+    # the pseudo-inverse: a chart with fewer than six good points, or all of them on a line, gets
+    # the least-squares quadratic of smallest norm instead of a singular system
+    coef = (np.linalg.pinv(gram, hermitian=True) @ rhs[..., None])[..., 0]
+    return np.where(good & valid, z, np.einsum("cni,ci->cn", basis, coef))

@@ -8,7 +8,8 @@ with the choices documented in ``docs/surface-filter.md``:
    planes through every point's neighbours give held-out residuals, the chart's noise scale
    (breakdown point q) and 0/1 starting weights that keep clusters of outliers out; the
    cut-offs start at ``r`` times that scale, and the networks are first fitted for
-   ``start_epochs`` epochs by weighted least squares on the good points.
+   ``start_epochs`` epochs by least squares on the good points, the others replaced by the
+   chart's quadratic through the good points.
 2. **Held-out residuals** (our choice): the points of a chart are split in ``n_folds`` folds;
    besides the full network, one fold network per fold is trained on the other folds. The
    noise scale comes from the residual of each point under the fold network that never saw it,
@@ -35,14 +36,14 @@ converges in far fewer epochs than descending every weight).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 
 from scanrig.errors import InputError
 from scanrig.surface.hampel import HampelConstants, check_q, hampel_rho, hampel_weight, robust_scale
-from scanrig.surface.local_start import robust_start
+from scanrig.surface.local_start import fill_with_quadratic, robust_start
 from scanrig.surface.network import HeightFieldNets
 
 LOSSES = ("hampel", "mse", "huber")
@@ -73,7 +74,9 @@ class FitSettings:
         Neighbours of the local trimmed planes of the robust start (``"hampel"`` only, see
         :mod:`scanrig.surface.local_start`).
     start_epochs : int
-        Epochs of weighted least squares on the start's good points before the Hampel loss.
+        Epochs of least squares on the start's good points, the others replaced by the chart's
+        quadratic through them (:func:`~scanrig.surface.local_start.fill_with_quadratic`), before
+        the Hampel loss.
     robust_epochs : int
         Full-batch epochs of back-propagation on the Hampel loss (``"hampel"``). 160: with the
         reweighting step after them, 200 gave the same accuracy (mean over the 24 protocol
@@ -361,7 +364,10 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                                          alpha=settings.alpha)
         cut[:] = settings.constants.r * np.maximum(start_upper, sigma_floor)
         weight = weight * rows.gather(torch.as_tensor(np.repeat(good, k, axis=0), device=device)).double()
-        _weighted_least_squares(nets, rows, weight, settings, settings.start_epochs)
+        filled = torch.as_tensor(np.repeat(fill_with_quadratic(uv, z, valid, good), k, axis=0),
+                                 dtype=torch.float32, device=device)
+        _weighted_least_squares(nets, replace(rows, t=rows.gather(filled)), rows.m.double(), settings,
+                                settings.start_epochs)
     state = None
     for epoch in range(n_loop):
         if epoch % settings.update_every == 0:
