@@ -13,8 +13,8 @@ from scanrig.errors import InputError
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.network import HeightFieldNets, _Tanh
 from scanrig.surface.hampel import hampel_weight
-from scanrig.surface.robust_fit import (FitSettings, _Blocks, _bounded_by_heldout, _size_batches, _weighted_solve,
-                                      fit_charts_by_size)
+from scanrig.surface.robust_fit import (FitSettings, _adam, _Blocks, _bounded_by_heldout, _output_layer_irls,
+                                      _size_batches, _weighted_solve, fit_charts_by_size)
 
 
 @pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2)])
@@ -69,6 +69,33 @@ def test_tanh_matches_torch_with_first_and_second_derivatives():
     assert (_Tanh.apply(x32) - torch.tanh(x32)).abs().max() < 4e-7  # float32 rounding at unit scale
 
 
+def _step_sizes(opt, sched, epochs):
+    steps = []
+    for _ in range(epochs):
+        steps.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    return np.array(steps)
+
+
+def test_adam_schedule_is_torch_cosine_decay_times_a_linear_warm_up():
+    nets = HeightFieldNets(1, hidden=3, depth=1, architecture="mlp", generator=torch.Generator().manual_seed(0))
+    settings = FitSettings(learning_rate=0.01)
+    plain = _step_sizes(*_adam(nets, settings, 100), 100)
+    reference_opt = torch.optim.Adam(nets.hidden_parameters(), lr=0.01)
+    reference = _step_sizes(reference_opt, torch.optim.lr_scheduler.CosineAnnealingLR(
+        reference_opt, T_max=100, eta_min=0.01 / 20), 100)
+    np.testing.assert_allclose(plain, reference, rtol=1e-12)
+    warm = _step_sizes(*_adam(nets, settings, 100, warmup_epochs=10), 100)
+    np.testing.assert_allclose(warm[:10] / plain[:10], np.arange(1, 11) / 10, rtol=1e-12)
+    np.testing.assert_array_equal(warm[10:], plain[10:])
+
+
+def test_negative_warm_up_is_rejected():
+    with pytest.raises(InputError, match="start_epochs and warmup_epochs must be >= 0, got 60, -1"):
+        FitSettings(warmup_epochs=-1)
+
+
 def _batch_cost(batches, sizes, overhead):
     return sum(overhead + sizes[b].max() * len(b) for b in batches)
 
@@ -120,13 +147,12 @@ def test_freed_memory_is_reused_without_page_faults():
     assert round_of_temporaries() < 64
 
 
-def test_full_network_weights_are_bounded_by_the_held_out_ones():
-    # 2 charts x (full + 2 fold networks), random networks: each full-network weight must become
-    # min(own, Hampel weight of z minus the fold network that did not see the point)
-    gen = torch.Generator().manual_seed(4)
-    n_charts, n, k = 2, 30, 3
+def _random_copies(seed, n_charts=2, n=30, k=3):
+    """Random networks of ``n_charts`` charts x (full + 2 fold networks), their blocks, random weights
+    in [0, 1] and fixed cut-offs."""
+    gen = torch.Generator().manual_seed(seed)
     nets = HeightFieldNets(n_charts * k, hidden=5, depth=2, architecture="mlp", generator=gen)
-    rng = np.random.default_rng(4)
+    rng = np.random.default_rng(seed)
     uv = torch.as_tensor(rng.uniform(-1, 1, (n_charts, n, 2)), dtype=torch.float32)
     z = torch.as_tensor(rng.normal(0, 1, (n_charts, n)), dtype=torch.float32)
     fold = rng.integers(0, 2, (n_charts, n))
@@ -137,6 +163,14 @@ def test_full_network_weights_are_bounded_by_the_held_out_ones():
     weight = torch.as_tensor(rng.uniform(0, 1, tuple(rows.m.shape))) * rows.m
     cut = {"a": torch.full((n_charts * k, 1), 0.5), "b": torch.full((n_charts * k, 1), 1.5),
            "beta": torch.full((n_charts * k, 1), 2.0)}
+    return nets, rows, weight, cut, x, t, z, fold
+
+
+def test_full_network_weights_are_bounded_by_the_held_out_ones():
+    # each full-network weight must become min(own, Hampel weight of z minus the fold network
+    # that did not see the point)
+    nets, rows, weight, cut, x, t, z, fold = _random_copies(4)
+    n_charts, k, n = fold.shape[0], 3, fold.shape[1]
     bounded = _bounded_by_heldout(nets, rows, weight, x, t, fold, FitSettings(), {"torch": cut}).numpy()
     with torch.no_grad():
         pred = nets(x).reshape(n_charts, k, n).numpy()
@@ -151,3 +185,17 @@ def test_full_network_weights_are_bounded_by_the_held_out_ones():
             else:
                 expected = float(weight[v, slot])
             assert bounded[v, slot] == pytest.approx(expected, abs=1e-6)
+
+
+def test_monotone_output_layer_irls_never_raises_a_weight_and_leaves_the_optimum():
+    nets, rows, weight, cut, *_ = _random_copies(7)
+    settings = FitSettings(final_irls=3)
+    free = _output_layer_irls(nets, rows, weight, settings, {"torch": cut})
+    assert (free > weight + 1e-6).any()  # the plain steps do raise weights here
+    capped = _output_layer_irls(nets, rows, weight, settings, {"torch": cut}, monotone=True)
+    assert torch.all(capped <= weight)
+    with torch.no_grad():
+        feats = nets.features(rows.x, rows.owner)
+        optimum = _weighted_solve(feats, rows.t, capped, rows.owner, rows.n_copies).float()
+    torch.testing.assert_close(nets.weights[-1][:, :, 0], optimum[:, :-1], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(nets.biases[-1][:, 0, 0], optimum[:, -1], rtol=1e-5, atol=1e-6)
