@@ -8,6 +8,7 @@ import pytest
 from scanrig.errors import InputError, ShapeError
 from scanrig.io.ply import read_points_with_sigma
 from scanrig.surface import filter_points
+from scanrig.surface.filter import POINT_TRUST_FACTOR, TRUST_FACTOR, _chart_noise
 
 from .conftest import FAST
 
@@ -89,6 +90,25 @@ def test_point_sigma_guards_a_sparse_cloud_of_one_chart():
     error = distance_to_box_on_floor(result.denoised)
     assert np.sqrt(np.mean(error ** 2)) <= np.sqrt(np.mean(before ** 2))
     assert np.max(error) <= 15 * NOISE
+
+
+def test_a_chart_moves_points_of_known_sigma_only_where_it_predicts_better_than_them():
+    # one chart over a noisy plane; the points' own sigma set so that the chart's held-out
+    # scale is 1.5 or 2 times it: below POINT_TRUST_FACTOR (sqrt 3) the fit replaces the points,
+    # above it (but below TRUST_FACTOR, so the chart is not halved) it moves none
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.1, 0.1, (1500, 2))
+    points = np.column_stack([xy, 0.1 * xy[:, 0] + rng.normal(0, NOISE, len(xy))])
+    free = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST)
+    _, sigma_fit = _chart_noise(free.fits, free.z_scale, FAST.constants.r)
+    assert len(free.charts) == 1
+    assert 1.5 < POINT_TRUST_FACTOR < 2.0 < TRUST_FACTOR
+    for ratio, moves in ((1.5, True), (2.0, False)):
+        result = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST,
+                               point_sigma=np.full(len(points), sigma_fit[0] / ratio))
+        moved = np.any(result.denoised != points, axis=1)
+        assert len(result.charts) == 1
+        assert moved.mean() > 0.9 if moves else not moved.any()
 
 
 def test_point_sigma_is_checked():

@@ -17,7 +17,9 @@ from scanrig.surface.sheets import split_sheets
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
-#: the median chart's noise scale; and each point's own sigma if given) does not move points.
+#: the median chart's noise scale) does not move points; one that exceeds it times
+#: ``sigma_floor``, else its points' median own sigma, else the median chart's, is halved
+#: (:func:`_loose_charts`). Points of known sigma: see ``POINT_TRUST_FACTOR``.
 TRUST_FACTOR = 3.0
 #: A chart moves a point whose own sigma is known only if its held-out noise scale is at most
 #: this multiple of that sigma. The held-out scale is ``sqrt(sigma_point^2 + s_fold^2)`` with
