@@ -17,9 +17,10 @@ from scanrig.surface.sheets import split_sheets
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
-#: the median chart's noise scale) does not move points; one that exceeds it times
-#: ``sigma_floor``, else its points' median own sigma, else the median chart's, is halved
-#: (:func:`_loose_charts`). Points of known sigma: see ``POINT_TRUST_FACTOR``.
+#: the typical chart's, :func:`_typical_noise`) is not trusted: it moves no point, and its
+#: points are scored against the reference instead of its own loose fit; one that exceeds it
+#: times ``sigma_floor``, else its points' median own sigma, else the typical chart's, is
+#: halved (:func:`_loose_charts`). Points of known sigma: see ``POINT_TRUST_FACTOR``.
 TRUST_FACTOR = 3.0
 #: A chart moves a point whose own sigma is known only if its held-out noise scale is at most
 #: this multiple of that sigma. The held-out scale is ``sqrt(sigma_point^2 + s_fold^2)`` with
@@ -50,7 +51,8 @@ class FilterResult:
         ``score <= r`` (the Hampel rejection point): the point lies inside the good-data band.
     score : (N,) float array
         Robust score ``|held-out residual| / sigma+`` (sigma+ the bootstrap upper bound of the
-        chart's noise scale); dimensionless, larger is more suspicious.
+        chart's noise scale; for a chart that is not trusted, see ``TRUST_FACTOR``, the
+        reference noise instead); dimensionless, larger is more suspicious.
     residual : (N,) float array
         Signed distance from the fitted surface along the chart normal, metres.
     sigma : (N,) float array
@@ -99,7 +101,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     sigma_floor : float
         Known sensor noise in metres: the noise scale is never taken below it, and a chart
         whose noise scale exceeds ``TRUST_FACTOR`` times it does not move points (default 0:
-        the median chart's noise scale is that reference).
+        the typical chart's noise scale is that reference).
     device : str
         Torch device: ``"cpu"``, ``"cuda"``, or ``"auto"`` (CUDA when present).
     train_mask : (N,) bool array, optional
@@ -109,7 +111,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         absolute reference for ``denoised``. A chart moves a point only if its noise scale is
         at most ``POINT_TRUST_FACTOR`` times the point's sigma and the point lies within
         ``r * point_sigma`` of the fit, so no point moves by more than that; without it the
-        reference is relative (the median chart), which a cloud of one chart cannot use.
+        reference is relative (the typical chart), which a cloud of one chart cannot use.
 
     Returns
     -------
@@ -197,7 +199,7 @@ def _loose_charts(charts: list[Chart], fits: ChartFits, z_scale: np.ndarray, set
     """(C,) bool: charts whose network does not follow their points.
 
     Held-out noise scale above ``TRUST_FACTOR`` times the reference (``sigma_floor`` if given,
-    else the median ``point_sigma`` of the chart's core if given, else the median chart's), or
+    else the median ``point_sigma`` of the chart's core if given, else the typical chart's), or
     more than ``q`` of the chart's points beyond the rejection point: more bad data than the
     fit tolerates, e.g. a step or a second object's face taken for a cluster of outliers.
     """
@@ -207,8 +209,23 @@ def _loose_charts(charts: list[Chart], fits: ChartFits, z_scale: np.ndarray, set
     elif point_sigma is not None:
         reference = np.array([np.median(point_sigma[c.core]) for c in charts])
     else:
-        reference = np.full(len(charts), np.median(sigma_fit))
+        reference = np.full(len(charts), _typical_noise(charts, sigma_fit))
     return (sigma_fit > TRUST_FACTOR * reference) | (fits.history[-1]["rejected"] > settings.q)
+
+
+def _typical_noise(charts: list[Chart], sigma_fit: np.ndarray) -> float:
+    """Median of the charts' held-out noise scales over the points (each chart weighted by its
+    members), metres.
+
+    Not the median over the charts: on 100 000 points of the scan with 10 % outliers, 64 of the
+    123 charts were small pieces (54-144 points) of reflection blobs with scales of 3.5-27 sigma;
+    they outnumbered the surface charts (1.0-1.2 sigma) and put the median chart at 5.0 sigma,
+    so that 54 of them passed the trust test (1.03 sigma over the points).
+    """
+    sizes = np.array([len(chart.members) for chart in charts], dtype=float)
+    order = np.argsort(sigma_fit)
+    share = np.cumsum(sizes[order]) / sizes.sum()
+    return float(sigma_fit[order][np.searchsorted(share, 0.5)])
 
 
 def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart], fits: ChartFits,
@@ -219,7 +236,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     ``residual``, ``score`` and ``sigma`` use the partition of unity of every chart a point is a
     member of. ``denoised`` is guarded so that the filter never makes good data worse: it blends
     only *trusted* charts (noise scale at most ``TRUST_FACTOR`` times ``sigma_floor`` if given,
-    else times the median noise scale of all charts: a chart that cannot follow its surface,
+    else times the typical chart's noise scale: a chart that cannot follow its surface,
     e.g. one that straddles a step, has a noise scale far above the others'),
     whose normal agrees with the point's normal (within the charts' 60 degrees; projecting a
     wall point along a floor chart's normal is meaningless), with inverse-variance weights
@@ -228,13 +245,18 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     fit smooths away (flagged, not projected). With ``point_sigma`` the chart must also be
     within ``POINT_TRUST_FACTOR`` of the point's own sigma and the point within ``r`` of its own
     sigma of the fit: a point is then never moved by more than ``r`` of its own sigmas. A point
-    that no such chart covers keeps its measured position.
+    that no such chart covers keeps its measured position. A chart that is not trusted scores
+    its points against the reference noise, not its own loose scale: a chart that is no surface
+    at the cloud's noise (a blob of reflections) does not vouch for its points (on the
+    100 000-point scan, recall of the >= 5 sigma outliers 0.822 instead of 0.708, inlier FRR
+    0.0011 instead of 0.0008; the protocol's cells, whose charts are all trusted, unchanged).
     """
     n = len(points)
     r = settings.constants.r
     sigma_c, sigma_fit = _chart_noise(fits, z_scale, r)
     # reference noise: the known sensor noise if given, else the typical chart's
-    sigma_ref = sigma_floor if sigma_floor > 0 else max(float(np.median(sigma_fit)), 1e-300)
+    sigma_ref = sigma_floor if sigma_floor > 0 else max(_typical_noise(charts, sigma_fit), 1e-300)
+    trusted = sigma_fit <= TRUST_FACTOR * sigma_ref
     cos_max = np.cos(MAX_NORMAL_ANGLE)
     acc = np.zeros((n, 7))  # weight, denoised xyz, residual, score, sigma
     acc_d = np.zeros((n, 4))  # guarded weight, denoised xyz
@@ -248,11 +270,11 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
         values = np.column_stack([
             projected,
             local[:, 2] - height,
-            np.abs(fits.residual_heldout[c, :m]) * z_scale[c] / sigma_c[c],
+            np.abs(fits.residual_heldout[c, :m]) * z_scale[c] / (sigma_c[c] if trusted[c] else sigma_ref),
             np.full(m, sigma_c[c]),
         ])
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
-        if sigma_fit[c] <= TRUST_FACTOR * sigma_ref:
+        if trusted[c]:
             agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
             # a point beyond the rejection point of the fit is flagged, never moved: it is a gross
             # error or it lies on structure the fit smooths away (an edge, a step, a corner),
