@@ -121,7 +121,6 @@ def test_point_sigma_is_checked():
         filter_points(points, rng=np.random.default_rng(0), point_sigma=np.zeros(len(points)))
 
 
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_with_point_sigma_no_point_moves_beyond_its_own_noise(seed):
     # the spot demo's cloud: 62 points over a scene, the floor the majority, the block top 80 mm

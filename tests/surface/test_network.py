@@ -147,9 +147,10 @@ def test_freed_memory_is_reused_without_page_faults():
     assert round_of_temporaries() < 64
 
 
-def _random_copies(seed, n_charts=2, n=30, k=3):
+def _random_copies(seed, n_charts=2, n=30):
     """Random networks of ``n_charts`` charts x (full + 2 fold networks), their blocks, random weights
     in [0, 1] and fixed cut-offs."""
+    k = 3  # copies per chart: the full network and its 2 fold networks
     gen = torch.Generator().manual_seed(seed)
     nets = HeightFieldNets(n_charts * k, hidden=5, depth=2, architecture="mlp", generator=gen)
     rng = np.random.default_rng(seed)
