@@ -92,7 +92,8 @@ def test_adam_schedule_is_torch_cosine_decay_times_a_linear_warm_up():
 
 
 def test_negative_warm_up_is_rejected():
-    with pytest.raises(InputError, match="start_epochs and warmup_epochs must be >= 0, got 60, -1"):
+    with pytest.raises(InputError, match="start_epochs, warmup_epochs and mixture_neighbours must be >= 0, "
+                                         "got 60, -1, 100"):
         FitSettings(warmup_epochs=-1)
 
 
