@@ -4,13 +4,14 @@ The Hampel weights treat alike every residual inside the rejection point ``r`` s
 that are one-sided and clustered in space (edge ghosts: mixtures of the two sides of an edge,
 offsets spread evenly from zero to the depth difference; reflections near their blob's rim)
 fall partly inside that band, where no test on a residual alone can reject them, and all on one
-side: they pull the fit. On the crease of the protocol at 20 % outliers the fit sank by 0.24
-sigma more than the oracle's beside the edge.
+side: they pull the fit. On the crease of the protocol at 20 % outliers the fit sank 0.2-0.3
+sigma further than the oracle's within 0.3 of the edge.
 
 Yet the same cluster leaves a trace just beyond the rejection point. Around each point, the
 neighbours with residuals in ``(r, w r]`` sigma on one side give the density of outliers per
-unit of residual on that side; taken as flat down to zero (the density of a one-sided offset
-that is spread evenly, and an under-estimate for one that grows from zero), it is the outlier
+unit of residual on that side; taken as flat down to zero (exact for offsets spread evenly
+from zero, as an edge ghost's; too high where outliers are rarer near the surface, as in a
+reflection blob, whose offsets start at a few sigma), it is the outlier
 component of a local mixture whose inlier component is the Gaussian of the points inside the
 band. The posterior probability that a point of standardised residual ``s`` is an inlier::
 
