@@ -14,6 +14,7 @@ from scanrig.surface.hampel import check_q
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
 from scanrig.surface.sheets import split_sheets
+from scanrig.surface.surroundings import surroundings_score
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
@@ -52,7 +53,8 @@ class FilterResult:
     score : (N,) float array
         Robust score ``|held-out residual| / sigma+`` (sigma+ the bootstrap upper bound of the
         chart's noise scale; for a chart that is not trusted, see ``TRUST_FACTOR``, the
-        reference noise instead); dimensionless, larger is more suspicious.
+        reference noise instead, and at least the point's score against the trusted surface
+        around it, see :func:`_blend_outputs`); dimensionless, larger is more suspicious.
     residual : (N,) float array
         Signed distance from the fitted surface along the chart normal, metres.
     sigma : (N,) float array
@@ -250,6 +252,11 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     at the cloud's noise (a blob of reflections) does not vouch for its points (on the
     100 000-point scan, recall of the >= 5 sigma outliers 0.822 instead of 0.708, inlier FRR
     0.0011 instead of 0.0008; the protocol's cells, whose charts are all trusted, unchanged).
+    Its points that no trusted chart owns are also scored against the trusted surface around
+    them where they form no surface in its frame
+    (:func:`~scanrig.surface.surroundings.surroundings_score`; the larger score counts): the
+    fit of a chart cut from a blob runs through the blob (same scan: recall 0.919 instead of
+    0.817, FRR unchanged).
     """
     n = len(points)
     r = settings.constants.r
@@ -294,6 +301,12 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     denoised = points.copy()
     denoised[covered] = acc_d[covered, 1:] / acc_d[covered, :1]
     score = out[:, 4]
+    # a point of an untrusted chart that no trusted chart owns is also judged by the trusted surface around it
+    owned = np.zeros(n, bool)
+    for c in np.flatnonzero(trusted):
+        owned[charts[c].core] = True
+    score = np.fmax(score, surroundings_score(points, normals, [charts[c] for c in np.flatnonzero(~trusted)], owned,
+                                              np.flatnonzero(owned & (score <= r)), sigma_ref, r))
     return FilterResult(denoised=denoised, inlier=score <= r, score=score,
                         residual=out[:, 3], sigma=out[:, 5], charts=charts, fits=fits,
                         uv_scale=uv_scale, z_scale=z_scale, settings=settings)
