@@ -11,8 +11,10 @@ false rejections unchanged (0.0011), 0.5 s of the 56 s.
 Here the core points of such a chart, unless a trusted chart owns them, are judged again by the
 surface of the trusted inliers around them when the chart's points are no surface at the
 reference noise *in the frame of that surrounding surface*: the least-trimmed-squares plane of
-each point's 16 nearest chart points in that plane (as in the robust start) has a trimmed scale
-above ``SURFACE_SCALE_FACTOR`` noise scales or misses the point by more than ``r``. A patch of
+each point's 16 nearest points in that plane (as in the robust start; all points over the
+chart's place, between the surrounding surface and the chart's highest or lowest point) has a
+trimmed scale above ``SURFACE_SCALE_FACTOR`` noise scales or misses the point by more than
+``r``. A patch of
 reflections spreads its heights over many noise scales above the surface; a true surface in a
 chart that failed for another reason (a side too small to be a sheet, the top of a second
 object) is smooth in that frame too and keeps its chart's judgement. Not in the chart's own
@@ -23,8 +25,8 @@ slab at the noise level.
 The surrounding surface of a point is a least-squares quadratic through its ``k`` nearest
 trusted inliers, in the frame of their mean normal (not of their principal axes: around a blob
 the nearest trusted points are a strip along its rim, whose thinnest axis may lie in the
-surface), used where it fits them within
-``SURFACE_SCALE_FACTOR`` noise scales (one smooth surface, not two sides of an edge). The
+surface), used where it fits them within ``SURFACE_SCALE_FACTOR`` noise scales (one smooth
+surface, not two sides of an edge). The
 point's score is its distance from the quadratic over the standard deviation of that distance,
 ``sigma_ref sqrt(1 + g)`` with ``g`` the quadratic's prediction variance at the point in units
 of the noise variance: far from the trusted points (extrapolation) the score shrinks instead of
