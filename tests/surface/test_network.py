@@ -13,8 +13,8 @@ from scanrig.errors import InputError
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.network import HeightFieldNets, _Tanh
 from scanrig.surface.hampel import hampel_weight
-from scanrig.surface.robust_fit import (FitSettings, _adam, _Blocks, _bounded_by_heldout, _output_layer_irls,
-                                      _size_batches, _weighted_solve, fit_charts_by_size)
+from scanrig.surface.robust_fit import (FitSettings, _adam, _Blocks, _bounded_by_heldout, _heldout_prediction,
+                                      _output_layer_irls, _size_batches, _weighted_solve, fit_charts_by_size)
 
 
 @pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2)])
@@ -173,7 +173,8 @@ def test_full_network_weights_are_bounded_by_the_held_out_ones():
     # that did not see the point)
     nets, rows, weight, cut, x, t, z, fold = _random_copies(4)
     n_charts, k, n = fold.shape[0], 3, fold.shape[1]
-    bounded = _bounded_by_heldout(nets, rows, weight, x, t, fold, FitSettings(), {"torch": cut}).numpy()
+    z_chart, heldout = _heldout_prediction(nets, x, t, fold)
+    bounded = _bounded_by_heldout(rows, weight, z_chart - heldout, FitSettings(), {"torch": cut}).numpy()
     with torch.no_grad():
         pred = nets(x).reshape(n_charts, k, n).numpy()
     for v in range(len(rows.owner)):

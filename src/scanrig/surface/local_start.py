@@ -177,6 +177,12 @@ def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, 
     return good, sigma_upper
 
 
+def quadratic_basis(uv: np.ndarray) -> np.ndarray:
+    """The terms ``1, u, v, u^2, u v, v^2`` of a quadratic height field at ``uv`` (..., 2): (..., 6)."""
+    u, v = uv[..., 0], uv[..., 1]
+    return np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+
+
 def fill_with_quadratic(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, good: np.ndarray) -> np.ndarray:
     """Heights of the good points, and the chart's quadratic through them at every other point.
 
@@ -199,8 +205,7 @@ def fill_with_quadratic(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, good: 
     (C, n) float array
         ``z`` where ``good``, the quadratic elsewhere (padding included).
     """
-    u, v = uv[..., 0], uv[..., 1]
-    basis = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (C, n, 6)
+    basis = quadratic_basis(uv)  # (C, n, 6)
     w = (good & valid).astype(float)
     gram = np.einsum("cni,cn,cnj->cij", basis, w, basis)
     rhs = np.einsum("cni,cn,cn->ci", basis, w, z)

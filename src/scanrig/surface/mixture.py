@@ -11,9 +11,8 @@ Yet the same cluster leaves a trace just beyond the rejection point. Around each
 neighbours with residuals in ``(r, w r]`` sigma on one side give the density of outliers per
 unit of residual on that side; taken as flat down to zero (exact for offsets spread evenly
 from zero, as an edge ghost's; too high where outliers are rarer near the surface, as in a
-reflection blob, whose offsets start at a few sigma), it is the outlier
-component of a local mixture whose inlier component is the Gaussian of the points inside the
-band. The posterior probability that a point of standardised residual ``s`` is an inlier::
+reflection blob, whose offsets start at a few sigma), it is the outlier component of a local
+mixture whose inlier component is the Gaussian of the points inside the band. The posterior probability that a point of standardised residual ``s`` is an inlier::
 
     P(s) = f_in phi(s) / (f_in phi(s) + c_sgn(s)),
     c_+ = #{neighbours with r < s_j <= w r} / (k (w - 1) r),  c_- likewise with -s_j,

@@ -422,11 +422,11 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         # reweighting step: the robust weights frozen, every copy retrained from its initial
         # hidden layers by weighted least squares (what the robust fit has learnt is which
         # points to trust and how much; the trajectory of the redescending fit is forgotten)
-        weight = _bounded_by_heldout(nets, rows, weight, x, t, fold, settings, state)
+        z_chart, heldout = _heldout_prediction(nets, x, t, fold)
+        weight = _bounded_by_heldout(rows, weight, z_chart - heldout, settings, state)
         neighbours = None
         if settings.mixture_neighbours > 0:
             neighbours = chart_neighbours(uv, train, settings.mixture_neighbours)
-            z_chart, heldout = _heldout_prediction(nets, x, t, fold)
             weight = weight * _mixture_weights(rows, neighbours, (z_chart - heldout).double().cpu().numpy(),
                                                settings, state)
         with torch.no_grad():
@@ -564,8 +564,8 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
                      history=history)
 
 
-def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor, x: torch.Tensor,
-                        t: torch.Tensor, fold: np.ndarray, settings: FitSettings, state: dict) -> torch.Tensor:
+def _bounded_by_heldout(rows: _Blocks, weight: torch.Tensor, heldout_residual: torch.Tensor, settings: FitSettings,
+                        state: dict) -> torch.Tensor:
     """The full networks' robust weights, each bounded by its point's held-out weight.
 
     A cluster of outliers just beyond the rejection point pulls the full network, which trains on
@@ -577,14 +577,12 @@ def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tens
 
     Parameters
     ----------
-    nets : HeightFieldNets
     rows : _Blocks
     weight : (V, L) float64 tensor
         Robust weights at the block points.
-    x, t : (M, n, 2), (M, n) tensors
-        Every copy's points and heights.
-    fold : (C, n) int array
-        Fold of each point.
+    heldout_residual : (C, n) tensor
+        Each point's height minus the fold network that never saw it
+        (:func:`_heldout_prediction`).
     settings : FitSettings
     state : dict
         Current cut-offs (``state["torch"]``).
@@ -593,11 +591,10 @@ def _bounded_by_heldout(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tens
     -------
     (V, L) float64 tensor
     """
-    n_max = fold.shape[1]
+    n_max = heldout_residual.shape[1]
     k = settings.n_folds + 1
     with torch.no_grad():
-        z, heldout = _heldout_prediction(nets, x, t, fold)
-        residual = (z - heldout)[:, None].expand(-1, k, -1).reshape(-1, n_max)
+        residual = heldout_residual[:, None].expand(-1, k, -1).reshape(-1, n_max)
         held = _irls_weight(rows.gather(residual), rows.m, settings.loss, rows.per_block(state["torch"]))
     return torch.where((rows.owner % k == 0)[:, None], torch.minimum(weight, held), weight)
 

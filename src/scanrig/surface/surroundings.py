@@ -14,23 +14,21 @@ reference noise *in the frame of that surrounding surface*: the least-trimmed-sq
 each point's 16 nearest points in that plane (as in the robust start; all points over the
 chart's place, between the surrounding surface and the chart's highest or lowest point) has a
 trimmed scale above ``SURFACE_SCALE_FACTOR`` noise scales or misses the point by more than
-``r``. A patch of
-reflections spreads its heights over many noise scales above the surface; a true surface in a
-chart that failed for another reason (a side too small to be a sheet, the top of a second
-object) is smooth in that frame too and keeps its chart's judgement. Not in the chart's own
-frame: a dense blob is a slab of points, and a chart cut from it is tilted (normals up to 60
-degrees from the surface's) so that its points' nearest neighbours lie on a plane through the
-slab at the noise level.
+``r``. A patch of reflections spreads its heights over many noise scales above the surface; a
+true surface in a chart that failed for another reason (a side too small to be a sheet, the top
+of a second object) is smooth in that frame too and keeps its chart's judgement. Not in the
+chart's own frame: a dense blob is a slab of points, and a chart cut from it is tilted (normals
+up to 60 degrees from the surface's) so that its points' nearest neighbours lie on a plane
+through the slab at the noise level.
 
 The surrounding surface of a point is a least-squares quadratic through its ``k`` nearest
 trusted inliers, in the frame of their mean normal (not of their principal axes: around a blob
 the nearest trusted points are a strip along its rim, whose thinnest axis may lie in the
 surface), used where it fits them within ``SURFACE_SCALE_FACTOR`` noise scales (one smooth
-surface, not two sides of an edge). The
-point's score is its distance from the quadratic over the standard deviation of that distance,
-``sigma_ref sqrt(1 + g)`` with ``g`` the quadratic's prediction variance at the point in units
-of the noise variance: far from the trusted points (extrapolation) the score shrinks instead of
-raising false alarms.
+surface, not two sides of an edge). The point's score is its distance from the quadratic over
+the standard deviation of that distance, ``sigma_ref sqrt(1 + g)`` with ``g`` the quadratic's
+prediction variance at the point in units of the noise variance: far from the trusted points
+(extrapolation) the score shrinks instead of raising false alarms.
 """
 
 from __future__ import annotations
@@ -39,7 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from scanrig.surface.charts import Chart
-from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, trimmed_planes
+from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, quadratic_basis, trimmed_planes
 
 #: Trusted inliers the surrounding quadratic is fitted to.
 SURROUNDING_POINTS = 96
@@ -105,8 +103,7 @@ def _surrounding_quadratics(points, normals, candidates, reference, k):
     offsets = points[reference[nb]] - p[:, None, :]  # the candidate at the origin
     axes = _frames(_mean_axis(normals[reference[nb]]))
     local = np.einsum("mki,mij->mkj", offsets, axes)
-    u, v, h = local[..., 0], local[..., 1], local[..., 2]
-    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+    design, h = quadratic_basis(local[..., :2]), local[..., 2]
     gram = np.einsum("mki,mkj->mij", design, design) + 1e-12 * np.eye(6)
     coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", design, h)[..., None])[..., 0]
     spread = np.sqrt(np.sum((h - np.einsum("mki,mi->mk", design, coef)) ** 2, axis=1) / (k - 6))
