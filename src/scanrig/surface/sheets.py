@@ -120,7 +120,8 @@ def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: floa
                cos_max: float, overlap: float) -> list[Chart] | None:
     """One chart per sheet of ``chart``, or None if it holds fewer than two."""
     members = chart.members
-    local = chart.to_chart(points[members])
+    levels = _levels_frame(normals[members], chart.rotation)
+    local = (points[members] - chart.origin) @ levels.T
     label = sheet_labels(local[:, :2], local[:, 2], q=q, cut=cut, k=k)
     is_core = np.isin(members, chart.core)
     counts = np.bincount(label[is_core & (label >= 0)], minlength=label.max() + 1)
@@ -138,3 +139,19 @@ def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: floa
                             cos_max=cos_max, overlap=overlap, claim=replace(claim, own=s))
             for s in range(len(sheet_ids))]
 
+
+
+def _levels_frame(normals: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Axes (3, 3) whose normal is the median of the point ``normals`` (m, 3) (turned to ``rotation[2]``).
+
+    The principal axes of a chart that holds a step are tilted towards the step (least squares
+    through two levels: slope 0.15 for the protocol's step), and in that tilted frame the edge
+    ghosts' column between the levels leans into a ramp that links them (step at 20 % outliers:
+    one sheet). Most points lie on a level, so their median normal is the levels' normal.
+    """
+    flipped = np.where((normals @ rotation[2] < 0.0)[:, None], -normals, normals)
+    normal = np.median(flipped, axis=0)
+    normal /= np.linalg.norm(normal)
+    u = rotation[0] - (rotation[0] @ normal) * normal
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(normal, u), normal])
