@@ -5,7 +5,8 @@ import pytest
 
 from scanrig.errors import InputError
 from scanrig.surface.hampel import (HampelConstants, check_q, hampel_psi, hampel_rho, hampel_weight,
-                                    robust_scale, trimmed_consistency, truncated_consistency)
+                                    refined_scale, robust_scale, trimmed_consistency, trimmed_scale,
+                                    truncated_consistency)
 
 A, B, BETA = 1.634, 4.0, 0.915  # sigma = 1
 FD_STEP = 1e-6
@@ -57,6 +58,22 @@ def test_robust_scale_recovers_sigma_under_gross_one_sided_errors(eps, q):
     # SE of a Gaussian scale from ~3000-5000 points is ~1.3 %; 5 % is about 4 SE
     assert est == pytest.approx(sigma, rel=0.05)
     assert est < upper < 1.1 * est  # bootstrap 95 % bound: about 1.65 SE above
+
+
+def test_refined_scale_removes_the_trimmed_overestimate_below_the_breakdown_point():
+    # 36 % two-sided gross errors at q = 0.5: the trimmed half holds inliers beyond the central
+    # half of the Gaussian, so the q-trimmed scale over-estimates sigma by ~1.6x. Refined inside
+    # 2.5 scales it is left with the gross errors inside the cut (~5 % of the points, mean
+    # square ~(2.75 sigma)^2 / 3), which raise it by ~8 %.
+    rng = np.random.default_rng(11)
+    r = rng.normal(0, 1.0, 5000)
+    bad = rng.random(r.size) < 0.36
+    r[bad] = rng.uniform(-20, 20, bad.sum())
+    assert trimmed_scale(r, 0.5) > 1.4
+    sigma, good = refined_scale(r, 0.5, cut=2.5)
+    assert 1.0 < sigma < 1.15
+    assert np.all(good <= (2.5 * 1.2) ** 2) and good.size > 0.6 * r.size  # the last step's set
+    assert sigma == pytest.approx(np.sqrt(good.mean() / truncated_consistency(2.5)))
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.1, 0.51, float("nan"), "x"])

@@ -224,6 +224,22 @@ def robust_scale(residuals: np.ndarray, q: float, *, rng: np.random.Generator, c
     sigma_upper : float
         Bootstrap ``1 - alpha`` upper bound in metres.
     """
+    sigma, good = refined_scale(residuals, q, cut=cut, n_refine=n_refine)
+    idx = rng.integers(0, good.size, size=(n_boot, good.size))
+    boot = np.sqrt(good[idx].mean(axis=1) / truncated_consistency(cut))
+    return sigma, float(np.quantile(boot, 1.0 - alpha))
+
+
+def refined_scale(residuals: np.ndarray, q: float, *, cut: float = 4.0, n_refine: int = 3) -> tuple[float, np.ndarray]:
+    """Steps 1 and 2 of :func:`robust_scale`: the q-trimmed scale refined inside ``cut`` scales.
+
+    Returns
+    -------
+    sigma : float
+        Scale estimate in metres.
+    good : (m,) float array
+        Squared residuals of the last refinement's "good" set (all of them if none was made).
+    """
     r2 = np.square(np.asarray(residuals, dtype=float).ravel())
     sigma = trimmed_scale(np.sqrt(r2), q)
     kappa = truncated_consistency(cut)
@@ -234,6 +250,4 @@ def robust_scale(residuals: np.ndarray, q: float, *, rng: np.random.Generator, c
             break
         good = inside
         sigma = float(np.sqrt(good.mean() / kappa))
-    idx = rng.integers(0, good.size, size=(n_boot, good.size))
-    boot = np.sqrt(good[idx].mean(axis=1) / kappa)
-    return sigma, float(np.quantile(boot, 1.0 - alpha))
+    return sigma, good
