@@ -87,3 +87,20 @@ def test_bad_shape_and_q_are_rejected():
         filter_points(np.zeros((100, 2)), rng=np.random.default_rng(0))
     with pytest.raises(InputError, match="q"):
         filter_points(np.zeros((100, 3)), rng=np.random.default_rng(0), q=0.7)
+
+
+def test_a_train_mask_that_leaves_a_half_chart_empty_stops_the_refinement():
+    # the oracle's mask leaves the bent half (x > 0) out of training: the chart cannot follow it
+    # and is halved, and the half x > 0 would have no point to train on (an InputError before)
+    rng = np.random.default_rng(3)
+    g = np.linspace(-1, 1, 40)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    truth = 0.5 * np.clip(x, 0, None) ** 2
+    z = truth + rng.normal(0, SIGMA, x.size)
+    train = x < 0
+    res = filter_points(np.column_stack([x, y, z]), rng=rng, settings=dataclasses.replace(FAST, loss="mse"),
+                        train_mask=train)
+    assert len(res.charts) > 1  # one round of halving was made
+    for chart in res.charts:
+        assert train[chart.members].sum() >= 2 * FAST.n_folds
+    assert np.sqrt(np.mean((res.denoised[train, 2] - truth[train]) ** 2)) < SIGMA  # denoised where trained

@@ -107,7 +107,9 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     device : str
         Torch device: ``"cpu"``, ``"cuda"``, or ``"auto"`` (CUDA when present).
     train_mask : (N,) bool array, optional
-        Only these points train the networks (the benchmark's oracle); all are evaluated.
+        Only these points train the networks (the benchmark's oracle); all are evaluated. The
+        refinement stops before a round that would leave a half chart fewer than
+        ``2 * n_folds`` of them.
     point_sigma : (N,) float array, optional
         Each point's own predicted standard deviation, metres (``sigma`` of ``points.ply``): an
         absolute reference for ``denoised``. A chart moves a point only if its noise scale is
@@ -163,6 +165,8 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         halves = split_sheets(points, normals,
                               halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q),
                               q=q, cut=r)
+        if train_mask is not None and min(train_mask[h.members].sum() for h in halves) < 2 * settings.n_folds:
+            break  # a half of points left out of training has nothing to fit: keep the charts
         new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device)
         keep = np.flatnonzero(~loose)
         fits = concatenate_fits([fits, new_fits], np.concatenate([keep, len(charts) + np.arange(len(halves))]))
