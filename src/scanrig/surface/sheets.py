@@ -17,9 +17,10 @@ are kept. A chart holding a step is therefore cut into *sheets* (our choice):
    every link across it, a crease (a change of slope only) none, and points between the two
    levels (edge ghosts) cannot bridge them: each lies near the plane of one level only;
 3. connected components with at least ``MIN_CHART_POINTS`` of the chart's core points are the
-   sheets; with two or more, every other member joins the sheet that owns its place in the
-   chart plane (:class:`~scanrig.surface.charts.Claim`: most of its nearest sheet points are
-   that sheet's). A height field has one surface over each place: an edge ghost on the low
+   sheets; with two or more, every member but the sheets' inner points (those whose nearest
+   sheet points are all of their own sheet) joins the sheet that owns its place in the chart
+   plane (:class:`~scanrig.surface.charts.Claim`: most of its nearest inner points are that
+   sheet's). A height field has one surface over each place: an edge ghost on the low
    side of a step joins the low sheet and is judged by its fit, even when its height is near
    the high level (joining the sheet whose plane is nearest in height kept such ghosts: recall
    of the outliers 0.93-0.98 instead of 0.95-0.99 on the step at 10-40 %, two seeds). Each
@@ -39,6 +40,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from scanrig.surface.charts import MIN_CHART_POINTS, Chart, Claim, chart_from_core
 from scanrig.surface.hampel import refined_scale
@@ -131,16 +133,31 @@ def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: floa
     if len(sheet_ids) < 2:
         return None
     # every point joins the sheet that owns its place in the chart plane (a height field has one
-    # surface over each place); a point of a sheet keeps it
+    # surface over each place); the places are claimed by the sheets' inner points, which keep
+    # their sheet
     labelled = np.flatnonzero(np.isin(label, sheet_ids))
     sheet = np.searchsorted(sheet_ids, label[labelled])
-    owner = Claim(points[members[labelled]], sheet, 0, chart.rotation[2]).owner(points[members])
-    owner[labelled] = sheet
+    inner = _inner(local[labelled, :2], sheet)
+    owner = Claim(points[members[labelled[inner]]], sheet[inner], 0, chart.rotation[2]).owner(points[members])
+    owner[labelled[inner]] = sheet[inner]
     claim = Claim(points[members], owner, 0, chart.rotation[2])
     return [chart_from_core(points, normals, members[(owner == s) & is_core], members[owner == s], q=q,
                             cos_max=cos_max, overlap=overlap, claim=replace(claim, own=s))
             for s in range(len(sheet_ids))]
 
+
+def _inner(uv: np.ndarray, sheet: np.ndarray) -> np.ndarray:
+    """``(m,)`` bool: sheet points whose ``LINK_NEIGHBOURS`` nearest sheet points (uv (m, 2)) share their sheet.
+
+    An edge ghost whose height is the other level's is a point of that level's sheet, on the
+    wrong side of the step (within a spacing of it): had it claimed its place, it would have
+    judged itself an inlier. Points next to another sheet's are left to the claim of the inner
+    ones, which puts the boundary midway between their fronts (protocol step, 10 data seeds:
+    worst recall of the >= 5 sigma outliers 0.932 / 0.950 / 0.936 -> 0.959 / 0.964 / 0.952 at
+    10 / 20 / 40 %).
+    """
+    nearest = cKDTree(uv).query(uv, k=min(LINK_NEIGHBOURS + 1, len(uv)))[1]
+    return np.all(sheet[nearest] == sheet[:, None], axis=1)
 
 
 def _levels_frame(normals: np.ndarray, rotation: np.ndarray) -> np.ndarray:
