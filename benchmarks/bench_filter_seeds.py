@@ -4,7 +4,7 @@ A network's fit depends on its initial weights, and training is chaotic: a chang
 float rounding moves a single cell's ratio by several per cent. One seed can pass or fail a
 limit by luck; this prints, per protocol cell (same data as ``bench_filter.py``), the ratio of
 the robust network's error to the oracle's for every seed, their mean and worst, the inlier
-false-rejection rate (mean, worst), the recall of the outliers >= 5 sigma off (worst) and the
+false-rejection rate (mean, worst), the recall of the outliers >= 5 sigma off (mean, worst) and the
 step's transition width (mean, worst), then the cells whose worst seed exceeds the acceptance
 limits (error 1.1x the oracle up to 20 % outliers, 1.3x at 40 %; recall 0.95, FRR 0.01, width 2).
 
@@ -63,7 +63,7 @@ def main():
     data = {d: protocol_data(d) for d in data_seeds}
     print(f"sigma = {SIGMA} m; grid 64x64; vary {args.vary}; data seeds {data_seeds}; weight seeds {args.seeds}")
     print(f"{'surface':11s} {'eps':>4s} {'robust/oracle per seed':>{7 * len(args.seeds)}s} {'mean':>6s} {'worst':>6s} "
-          f"{'FRR':>7s} {'FRRmax':>7s} {'recall':>7s} {'width/h':>7s} {'wmax':>5s} {'n<r':>5s} {'ref/oracle':>10s}")
+          f"{'FRR':>7s} {'FRRmax':>7s} {'recall':>6s} {'rmin':>6s} {'width/h':>7s} {'wmax':>5s} {'n<r':>5s} {'ref/oracle':>10s}")
     failing = []
     for cell in args.cells:
         f = SURFACES[surface_of(cell)][0]
@@ -90,7 +90,7 @@ def main():
                 n_within.append(within.sum())
             ratios = np.array(ratios)
             w = f"{np.mean(width):7.2f} {np.max(width):5.2f}" if surface_of(cell) == "step" else "      -     -"
-            rec = f"{np.min(recall):7.3f}" if eps > 0 else "      -"
+            rec = f"{np.mean(recall):6.3f} {np.min(recall):6.3f}" if eps > 0 else "     -      -"
             print(f"{cell:11s} {eps:4.2f} {' '.join(f'{r:6.3f}' for r in ratios)} {ratios.mean():6.3f} "
                   f"{ratios.max():6.3f} {np.mean(frr):7.4f} {np.max(frr):7.4f} {rec} {w} {np.mean(n_within):5.0f} "
                   f"{np.mean(reference):10.3f}", flush=True)
