@@ -112,6 +112,23 @@ def test_gross_errors_below_the_breakdown_point_do_not_inflate_the_sheets_noise_
         assert np.sum(np.bincount(label[label >= 0]) >= 64) == 2, seed
 
 
+def test_a_corner_cut_off_by_a_band_of_reflections_stays_in_the_sheet():
+    # a band of one-sided reflections (5 sigma to 0.3 above) across a plane breaks every link
+    # through it; the corner beyond it (253 points) continues the plane and is joined to it
+    # (without the join: two sheets on each of these 5 draws)
+    g = np.linspace(-1, 1, N_SIDE)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    blob = np.abs(x + y - 0.9) < 0.2
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        z = 0.4 * x + rng.normal(0, SIGMA, x.size)
+        z[blob] += rng.uniform(5 * SIGMA, 0.3, blob.sum())
+        label = sheet_labels(np.column_stack([x, y]), z, q=0.3, cut=4.0)
+        sheets = np.flatnonzero(np.bincount(label[label >= 0]) >= 64)
+        assert len(sheets) == 1, seed
+        assert np.mean(label[(x + y > 1.15)] == sheets[0]) > 0.9  # the corner is in it
+
+
 def test_a_few_stray_points_of_a_sheet_do_not_claim_a_place():
     # two sheets side by side, and two points of sheet 1 deep inside sheet 0's half: the
     # places around them stay sheet 0's (most of the nearest sheet points vote for it)
