@@ -28,7 +28,7 @@ import dataclasses
 import numpy as np
 import torch
 
-from bench_filter import SIGMA, SURFACES, WIDE_GHOSTS, protocol_q, sample, step_width, surface_of
+from bench_filter import SIGMA, SURFACES, WIDE_GHOSTS, protocol_q, sample, step_width, surface_error, surface_of
 from scanrig.surface.filter import filter_points
 from scanrig.surface.robust_fit import FitSettings
 
@@ -66,7 +66,6 @@ def main():
           f"{'FRR':>7s} {'FRRmax':>7s} {'recall':>6s} {'rmin':>6s} {'width/h':>7s} {'wmax':>5s} {'n<r':>5s} {'ref/oracle':>10s}")
     failing = []
     for cell in args.cells:
-        f = SURFACES[surface_of(cell)][0]
         for eps in FRACTIONS:
             q = protocol_q(eps)
             ratios, frr, recall, width, reference, n_within = [], [], [], [], [], []
@@ -79,7 +78,7 @@ def main():
                            dict(settings=oracle, train_mask=~bad | within)):
                     res = filter_points(points, rng=np.random.default_rng(seed), q=q, **kw)
                     d = res.denoised
-                    errors.append(np.sqrt(np.mean((d[:, 2] - f(d[:, 0], d[:, 1]))[~bad] ** 2)))
+                    errors.append(np.sqrt(np.mean(surface_error(surface_of(cell), d)[~bad] ** 2)))
                     if len(errors) == 1:
                         frr.append(np.mean(~res.inlier[~bad]))
                         far = bad & (np.abs(offset) >= 5 * SIGMA)
