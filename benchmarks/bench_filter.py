@@ -155,10 +155,12 @@ def surface_error(name, points):
     the step's wall between its two levels is surface too (a point a hair across the edge line,
     moved there by its projection along a chart normal, is not 20 sigma off)."""
     err = points[:, 2] - SURFACES[name][0](points[:, 0], points[:, 1])
-    if name == "step":
-        wall = np.abs(edge_distance(name, points[:, 0], points[:, 1]))
-        between = (points[:, 2] > 0.0) & (points[:, 2] < STEP_H)
-        err = np.where(between & (wall < np.abs(err)), np.sign(err) * wall, err)
+    if name == "step":  # distance to the two half-planes and the wall, in the plane across the edge
+        s, z = edge_distance(name, points[:, 0], points[:, 1]), points[:, 2]
+        low = np.hypot(np.maximum(s, 0.0), z)
+        high = np.hypot(np.minimum(s, 0.0), z - STEP_H)
+        wall = np.hypot(s, np.maximum(0.0, np.maximum(-z, z - STEP_H)))
+        err = np.sign(err) * np.minimum(np.minimum(low, high), wall)
     return err
 
 
