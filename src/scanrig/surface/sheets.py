@@ -18,10 +18,10 @@ are kept. A chart holding a step is therefore cut into *sheets* (our choice):
    levels (edge ghosts) cannot bridge them: each lies near the plane of one level only;
 3. connected components with at least ``MIN_CHART_POINTS`` of the chart's core points are the
    sheets (components that continue each other's surface across a gap, such as a blob of
-   reflections, are joined first); with two or more, every member but the sheets' inner points (those whose nearest
-   sheet points are all of their own sheet) joins the sheet that owns its place in the chart
-   plane (:class:`~scanrig.surface.charts.Claim`: most of its nearest inner points are that
-   sheet's). A height field has one surface over each place: an edge ghost on the low
+   reflections, are joined first); with two or more, every member but the sheets' inner
+   points (those whose nearest sheet points are all of their own sheet) joins the sheet that
+   owns its place in the chart plane (:class:`~scanrig.surface.charts.Claim`: most of its
+   nearest inner points are that sheet's). A height field has one surface over each place: an edge ghost on the low
    side of a step joins the low sheet and is judged by its fit, even when its height is near
    the high level (joining the sheet whose plane is nearest in height kept such ghosts: recall
    of the outliers 0.93-0.98 instead of 0.95-0.99 on the step at 10-40 %, two seeds). Each
@@ -176,6 +176,8 @@ def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: floa
     labelled = np.flatnonzero(np.isin(label, sheet_ids))
     sheet = np.searchsorted(sheet_ids, label[labelled])
     inner = _inner(local[labelled, :2], sheet)
+    if len(np.unique(sheet[inner])) < len(sheet_ids):  # a sheet too thin to have inner points
+        inner[:] = True
     owner = Claim(points[members[labelled[inner]]], sheet[inner], 0, chart.rotation[2]).owner(points[members])
     owner[labelled[inner]] = sheet[inner]
     claim = Claim(points[members], owner, 0, chart.rotation[2])
