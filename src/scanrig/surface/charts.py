@@ -323,6 +323,14 @@ def blend_weights(chart: Chart, points: np.ndarray) -> np.ndarray:
     return np.prod(np.clip(1.0 - d**2, 0.0, None) ** 2, axis=1)
 
 
+def frames_from_normals(normal: np.ndarray) -> np.ndarray:
+    """Right-handed frames (m, 3, 3) whose columns are two tangents and the unit ``normal`` (m, 3)."""
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(normal, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return np.stack([t1, np.cross(normal, t1), normal], axis=-1)
+
+
 def _frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Median origin and principal axes (largest first, normal last) of a point set."""
     origin = np.median(points, axis=0)

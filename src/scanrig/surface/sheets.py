@@ -43,7 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from scanrig.surface.charts import MIN_CHART_POINTS, Chart, Claim, chart_from_core
+from scanrig.surface.charts import MIN_CHART_POINTS, Chart, Claim, chart_from_core, frames_from_normals
 from scanrig.surface.hampel import refined_scale
 from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, neighbour_planes
 
@@ -137,10 +137,11 @@ def _join_continuations(uv: np.ndarray, h: np.ndarray, label: np.ndarray, tol: f
     def continues(a, b):  # b's front against a plane through a's points beside it
         ia, ib = members[a], members[b]
         front = ib[np.argsort(trees[a].query(uv[ib])[0])[:n_front]]
-        patch = ia[trees[a].query(uv[front].mean(axis=0), k=min(4 * n_front, len(ia)))[1]]
-        design = np.column_stack([np.ones(len(patch)), uv[patch] - uv[front].mean(axis=0)])
+        centre = uv[front].mean(axis=0)
+        patch = ia[trees[a].query(centre, k=min(4 * n_front, len(ia)))[1]]
+        design = np.column_stack([np.ones(len(patch)), uv[patch] - centre])
         plane = np.linalg.lstsq(design, h[patch], rcond=None)[0]
-        gap = h[front] - plane[0] - (uv[front] - uv[front].mean(axis=0)) @ plane[1:]
+        gap = h[front] - plane[0] - (uv[front] - centre) @ plane[1:]
         return np.median(np.abs(gap)) <= tol
 
     pairs = np.array([(n, k) for n in range(len(big)) for k in range(n + 1, len(big))
@@ -210,7 +211,4 @@ def _levels_frame(normals: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """
     flipped = np.where((normals @ rotation[2] < 0.0)[:, None], -normals, normals)
     normal = np.median(flipped, axis=0)
-    normal /= np.linalg.norm(normal)
-    u = rotation[0] - (rotation[0] @ normal) * normal
-    u /= np.linalg.norm(u)
-    return np.stack([u, np.cross(normal, u), normal])
+    return frames_from_normals(normal[None] / np.linalg.norm(normal))[0].T

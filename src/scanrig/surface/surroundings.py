@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scanrig.surface.charts import Chart
+from scanrig.surface.charts import Chart, frames_from_normals
 from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, quadratic_basis, trimmed_planes
 
 #: Trusted inliers the surrounding quadratic is fitted to.
@@ -101,7 +101,7 @@ def _surrounding_quadratics(points, normals, candidates, reference, k):
     p = points[candidates]
     _, nb = cKDTree(points[reference]).query(p, k=k)
     offsets = points[reference[nb]] - p[:, None, :]  # the candidate at the origin
-    axes = _frames(_mean_axis(normals[reference[nb]]))
+    axes = frames_from_normals(_mean_axis(normals[reference[nb]]))
     local = np.einsum("mki,mij->mkj", offsets, axes)
     design, h = quadratic_basis(local[..., :2]), local[..., 2]
     gram = np.einsum("mki,mkj->mij", design, design) + 1e-12 * np.eye(6)
@@ -117,14 +117,6 @@ def _mean_axis(normals: np.ndarray) -> np.ndarray:
     return np.linalg.eigh(np.einsum("mki,mkj->mij", normals, normals))[1][..., -1]
 
 
-def _frames(normal: np.ndarray) -> np.ndarray:
-    """Right-handed frames (m, 3, 3) whose columns are two tangents and the unit ``normal`` (m, 3)."""
-    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t1 = np.cross(normal, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return np.stack([t1, np.cross(normal, t1), normal], axis=-1)
-
-
 def _rough(points: np.ndarray, core: np.ndarray, normal: np.ndarray, height: np.ndarray, sigma_ref: float,
            r: float) -> np.ndarray:
     """(n,) bool: core points whose neighbourhood is no plane at ``sigma_ref`` in the frame whose
@@ -135,7 +127,7 @@ def _rough(points: np.ndarray, core: np.ndarray, normal: np.ndarray, height: np.
     among the chart's members, which lie in its height window (a chart cut from a blob is a
     thin horizontal slice of it, flat at the noise level).
     """
-    local = points @ _frames(normal[None])[0]
+    local = points @ frames_from_normals(normal[None])[0]
     own = local[core]
     centre = own[:, :2].mean(axis=0)
     radius = np.max(np.linalg.norm(own[:, :2] - centre, axis=1))
