@@ -129,8 +129,21 @@ class Chart:
         return np.ones(len(points), bool) if self.claim is None else self.claim.holds(points)
 
 
+#: A neighbourhood whose middle covariance eigenvalue is below this fraction of its largest is
+#: a curve, not a surface (:func:`estimate_normals`): its width is under 10 % of its length.
+LINE_RATIO = 0.01
+#: Factor by which :func:`estimate_normals` enlarges such a neighbourhood.
+GROW = 4
+
+
 def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
-    """Unoriented unit normals from the covariance of the ``k`` nearest neighbours.
+    """Unoriented unit normals from the covariance of the nearest neighbours.
+
+    A neighbourhood along a curve (the ``k`` nearest points of a laser stripe all lie on it)
+    fixes one tangent only, and its smallest eigenvector may lie anywhere across the curve;
+    such points, whose middle eigenvalue is below ``LINE_RATIO`` times the largest, get
+    ``GROW`` times more neighbours (reaching the next stripes), repeatedly, until their
+    neighbourhood spans a surface or holds the whole cloud.
 
     Parameters
     ----------
@@ -144,12 +157,21 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     (N, 3) float array
         Eigenvector of the smallest eigenvalue of each neighbourhood covariance.
     """
-    k = min(k, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx.reshape(len(points), k)]
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred)
-    return np.linalg.eigh(cov)[1][:, :, 0]
+    normals = np.empty_like(points, dtype=float)
+    tree = cKDTree(points)
+    todo = np.arange(len(points))
+    while len(todo):
+        k = min(k, len(points))
+        _, idx = tree.query(points[todo], k=k)
+        nb = points[idx.reshape(len(todo), k)]
+        centred = nb - nb.mean(axis=1, keepdims=True)
+        value, vector = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+        normals[todo] = vector[:, :, 0]
+        if k == len(points):
+            break
+        todo = todo[value[:, 1] < LINE_RATIO * value[:, 2]]
+        k *= GROW
+    return normals
 
 
 def split_charts(points: np.ndarray, normals: np.ndarray, *, max_points: int, q: float,
