@@ -55,6 +55,17 @@ def test_start_keeps_clustered_outliers_out_at_40_percent():
     assert np.mean(good[~bad]) >= 0.85
 
 
+def test_start_scale_is_never_below_the_floor():
+    # the points' own sigma, 10x the scatter that neighbours along a stripe see
+    rng = np.random.default_rng(5)
+    uv = rng.uniform(-1, 1, (400, 2))
+    z = 0.1 * SIGMA * rng.standard_normal(len(uv))
+    good, sigma_upper = robust_start(uv[None], z[None], np.ones((1, len(z)), bool), q=0.25, cut=4.0,
+                                     rng=np.random.default_rng(0), sigma_floor=SIGMA)
+    assert sigma_upper[0] == SIGMA
+    assert good.all()
+
+
 def _reference_trimmed_plane(du, zn, keep=0.5, steps=6):
     """One set's LTS plane by the definition: concentration steps, each a least-squares fit of
     the ceil(keep k) points of smallest residual (numpy lstsq)."""

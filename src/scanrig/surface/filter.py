@@ -153,8 +153,8 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     normals = estimate_normals(points)
     r = settings.constants.r
     charts = split_sheets(points, normals, split_charts(points, normals, max_points=max_chart_points, q=q),
-                          q=q, cut=r)
-    fits, uv_scale, z_scale = _fit(points, charts, settings, rng, train_mask, sigma_floor, device)
+                          q=q, cut=r, point_sigma=point_sigma)
+    fits, uv_scale, z_scale = _fit(points, charts, settings, rng, train_mask, sigma_floor, device, point_sigma)
     for _ in range(REFINE_ROUNDS):
         # a chart that cannot follow its surface (a side of a step too small to be a sheet, a
         # network that failed) is halved and refitted
@@ -164,10 +164,11 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
             break
         halves = split_sheets(points, normals,
                               halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q),
-                              q=q, cut=r)
+                              q=q, cut=r, point_sigma=point_sigma)
         if train_mask is not None and min(train_mask[h.members].sum() for h in halves) < 2 * settings.n_folds:
             break  # a half of points left out of training has nothing to fit: keep the charts
-        new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device)
+        new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device,
+                                                   point_sigma)
         keep = np.flatnonzero(~loose)
         fits = concatenate_fits([fits, new_fits], np.concatenate([keep, len(charts) + np.arange(len(halves))]))
         charts = [charts[i] for i in keep] + halves
@@ -179,15 +180,23 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
 
 
 def _fit(points: np.ndarray, charts: list[Chart], settings: FitSettings, rng: np.random.Generator,
-         train_mask: np.ndarray | None, sigma_floor: float, device: str) -> tuple[ChartFits, np.ndarray, np.ndarray]:
-    """Fit the charts' networks in normalised coordinates; returns fits, uv and height scales (C,)."""
+         train_mask: np.ndarray | None, sigma_floor: float, device: str,
+         point_sigma: np.ndarray | None) -> tuple[ChartFits, np.ndarray, np.ndarray]:
+    """Fit the charts' networks in normalised coordinates; returns fits, uv and height scales (C,).
+
+    A chart's noise scale is never taken below ``sigma_floor`` nor below the median ``point_sigma``
+    of its members: the held-out residuals measure only the noise that neighbours do not share.
+    """
+    floor = np.full(len(charts), sigma_floor)
+    if point_sigma is not None:
+        floor = np.maximum(floor, [np.median(point_sigma[chart.members]) for chart in charts])
     uv_scale = np.array([max(chart.radius, 1e-300) for chart in charts])
     local = [chart.to_chart(points[chart.members]) for chart in charts]
     z_scale = np.array([max(h[:, 2].std(), 1e-9 * s) for h, s in zip(local, uv_scale)])
     fits = fit_charts_by_size([h[:, :2] / s for h, s in zip(local, uv_scale)],
                               [h[:, 2] / s for h, s in zip(local, z_scale)], settings=settings, rng=rng,
                               train_mask=None if train_mask is None else [train_mask[c.members] for c in charts],
-                              sigma_floor=sigma_floor / z_scale, device=device)
+                              sigma_floor=floor / z_scale, device=device)
     return fits, uv_scale, z_scale
 
 

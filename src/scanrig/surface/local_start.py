@@ -139,7 +139,7 @@ def trimmed_planes(du: np.ndarray, zn: np.ndarray, *, keep: float = 0.5,
 
 def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, cut: float,
                  rng: np.random.Generator, k: int = 24, scale_cut: float = 2.5, n_boot: int = 200,
-                 alpha: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+                 alpha: float = 0.05, sigma_floor: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Starting weights (0/1) and noise-scale upper bound of every chart.
 
     Parameters
@@ -158,21 +158,29 @@ def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, 
     scale_cut, n_boot, alpha
         Truncation of the scale's refinement, bootstrap resamples and level of its upper bound
         (:func:`~scanrig.surface.hampel.robust_scale`).
+    sigma_floor : float or (C,) float array
+        Lower bound of each chart's noise scale (the known noise of its points). Neighbours
+        along one laser stripe share most of their error, so their planes predict each point
+        far closer than the noise, and without it the start rejects the points where stripes
+        cross.
 
     Returns
     -------
     good : (C, n_max) bool array
         Points that start as good.
     sigma_upper : (C,) float array
-        Bootstrap upper bound of each chart's noise scale from the held-out residuals.
+        Bootstrap upper bound of each chart's noise scale from the held-out residuals, at least
+        ``sigma_floor``.
     """
     good = np.zeros(valid.shape, dtype=bool)
     sigma_upper = np.empty(len(valid))
+    floor = np.broadcast_to(np.asarray(sigma_floor, dtype=float), sigma_upper.shape)
     for c in range(len(valid)):
         m = int(valid[c].sum())
         residual, scale = local_trimmed_planes(uv[c, :m], z[c, :m], k=k)
         _, sigma_upper[c] = robust_scale(residual, q, rng=rng, cut=scale_cut, n_boot=n_boot,
                                         alpha=alpha)
+        sigma_upper[c] = max(sigma_upper[c], floor[c])
         good[c, :m] = (np.abs(residual) <= cut * sigma_upper[c]) & (scale <= SURFACE_SCALE_FACTOR * sigma_upper[c])
     return good, sigma_upper
 

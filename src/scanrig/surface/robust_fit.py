@@ -395,9 +395,9 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     if settings.loss == "hampel":  # high-breakdown start: weights and scale from local LTS planes
         good, start_upper = robust_start(uv, z, valid, q=settings.q, cut=settings.constants.r, rng=rng,
                                          k=settings.start_neighbours, scale_cut=settings.scale_cut,
-                                         n_boot=settings.n_boot,
-                                         alpha=settings.alpha)
-        cut[:] = settings.constants.r * np.maximum(start_upper, sigma_floor)
+                                         n_boot=settings.n_boot, alpha=settings.alpha,
+                                         sigma_floor=sigma_floor)
+        cut[:] = settings.constants.r * start_upper
         weight = weight * rows.gather(torch.as_tensor(np.repeat(good, k, axis=0), device=device)).double()
         filled = torch.as_tensor(np.repeat(fill_with_quadratic(uv, z, valid, good), k, axis=0),
                                  dtype=torch.float32, device=device)

@@ -52,7 +52,8 @@ LINK_NEIGHBOURS = 8
 
 
 def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *, q: float, cut: float,
-                 k: int = 16, max_angle: float = np.deg2rad(60.0), overlap: float = 0.25) -> list[Chart]:
+                 k: int = 16, max_angle: float = np.deg2rad(60.0), overlap: float = 0.25,
+                 point_sigma: np.ndarray | None = None) -> list[Chart]:
     """Replace each chart that holds two or more sheets (a step) by one chart per sheet.
 
     Parameters
@@ -68,6 +69,9 @@ def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *
         Neighbours of the local planes.
     max_angle, overlap
         As in :func:`~scanrig.surface.charts.split_charts`.
+    point_sigma : (N,) float array, optional
+        The points' own predicted noise, metres: a chart's noise scale is never taken below the
+        median of its members' (see :func:`sheet_labels`).
 
     Returns
     -------
@@ -76,8 +80,9 @@ def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *
     """
     kept, sheets = [], []
     for chart in charts:
+        floor = 0.0 if point_sigma is None else float(np.median(point_sigma[chart.members]))
         split = _sheets_of(points, normals, chart, q=q, cut=cut, k=k, cos_max=np.cos(max_angle),
-                           overlap=overlap)
+                           overlap=overlap, sigma_floor=floor)
         if split is None:
             kept.append(chart)
         else:
@@ -85,7 +90,8 @@ def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *
     return kept + sheets
 
 
-def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int = 16) -> np.ndarray:
+def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int = 16,
+                 sigma_floor: float = 0.0) -> np.ndarray:
     """Connected pieces of surface in a height field (steps cut them apart).
 
     Parameters
@@ -96,6 +102,10 @@ def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int 
         Heights.
     q, cut, k
         As in :func:`split_sheets`.
+    sigma_floor : float
+        Lower bound of the noise scale, in the units of ``h``. Neighbours along one laser
+        stripe share most of their error, so their planes predict each point far closer than
+        the noise, and without it every stripe of a scan became a sheet of its own.
 
     Returns
     -------
@@ -105,7 +115,7 @@ def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int 
     m = len(h)
     nb, planes, scale = neighbour_planes(uv, h, k=k)
     residual = h - planes[:, 0]
-    sigma = refined_scale(residual, q, cut=SURFACE_SCALE_FACTOR)[0]
+    sigma = max(refined_scale(residual, q, cut=SURFACE_SCALE_FACTOR)[0], sigma_floor)
     on_surface = (np.abs(residual) <= cut * sigma) & (scale <= SURFACE_SCALE_FACTOR * sigma)
     candidates = nb[:, :LINK_NEIGHBOURS]
     i, j = np.repeat(np.arange(m), candidates.shape[1]), candidates.ravel()
@@ -160,12 +170,12 @@ def _plane_gap(plane: np.ndarray, uv_plane: np.ndarray, uv: np.ndarray, h: np.nd
 
 
 def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: float, cut: float, k: int,
-               cos_max: float, overlap: float) -> list[Chart] | None:
+               cos_max: float, overlap: float, sigma_floor: float) -> list[Chart] | None:
     """One chart per sheet of ``chart``, or None if it holds fewer than two."""
     members = chart.members
     levels = _levels_frame(normals[members], chart.rotation)
     local = (points[members] - chart.origin) @ levels.T
-    label = sheet_labels(local[:, :2], local[:, 2], q=q, cut=cut, k=k)
+    label = sheet_labels(local[:, :2], local[:, 2], q=q, cut=cut, k=k, sigma_floor=sigma_floor)
     is_core = np.isin(members, chart.core)
     counts = np.bincount(label[is_core & (label >= 0)], minlength=label.max() + 1)
     sheet_ids = np.flatnonzero(counts >= MIN_CHART_POINTS)
