@@ -405,11 +405,13 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                                 settings.start_epochs)
     state = None
     for epoch in range(n_loop):
+        # the output layer is solved for the hidden layers of the last step before the noise
+        # scale is measured
+        r = rows.residual(nets, weight)
         if epoch % settings.update_every == 0:
             state = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
             history.append({"epoch": epoch, "sigma_upper": state["sigma_upper"].copy(),
                             "rejected": state["rejected"]})
-        r = rows.residual(nets, weight)
         cuts = rows.per_block(state["torch"])
         weight = _irls_weight(r.detach(), rows.m, settings.loss, cuts)
         loss_per_block = _robust_loss(r, rows.m, settings.loss, cuts) / rows.n_train
