@@ -185,7 +185,8 @@ def robust_start(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, q: float, 
     for c in range(len(valid)):
         m = int(valid[c].sum())
         residual, scale = local_trimmed_planes(uv[c, :m], z[c, :m], k=k)
-        surface = scale <= SURFACE_SCALE_FACTOR * max(refined_scale(residual, q, cut=scale_cut)[0], floor[c])
+        sigma_all = max(refined_scale(residual, q, cut=scale_cut)[0], floor[c])
+        surface = scale <= SURFACE_SCALE_FACTOR * sigma_all
         if surface.sum() < MIN_SURFACE_POINTS:
             surface[:] = True
         _, sigma_upper[c] = robust_scale(residual[surface], q, rng=rng, cut=scale_cut, n_boot=n_boot,
