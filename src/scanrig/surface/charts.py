@@ -99,6 +99,8 @@ class Chart:
     claim : Claim or None
         For one sheet of a height field split at a discontinuity: where it holds (None: all
         of its reach).
+    trained : (n_members,) bool array or None
+        Which members train the network (None: all); every member is judged by it.
     """
 
     origin: np.ndarray
@@ -109,6 +111,7 @@ class Chart:
     core: np.ndarray
     members: np.ndarray
     claim: Claim | None = None
+    trained: np.ndarray | None = None
 
     def to_chart(self, points: np.ndarray) -> np.ndarray:
         """``(N, 3)`` points in the cloud frame -> ``(N, 3)`` ``(u, v, height)`` in metres."""

@@ -107,7 +107,8 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     device : str
         Torch device: ``"cpu"``, ``"cuda"``, or ``"auto"`` (CUDA when present).
     train_mask : (N,) bool array, optional
-        Only these points train the networks (the benchmark's oracle); all are evaluated. The
+        Only these points train the networks (the benchmark's oracle), in place of the sheets'
+        own choice (:attr:`~scanrig.surface.charts.Chart.trained`); all are evaluated. The
         refinement stops before a round that would leave a half chart fewer than
         ``2 * n_folds`` of them.
     point_sigma : (N,) float array, optional
@@ -195,9 +196,19 @@ def _fit(points: np.ndarray, charts: list[Chart], settings: FitSettings, rng: np
     z_scale = np.array([max(h[:, 2].std(), 1e-9 * s) for h, s in zip(local, uv_scale)])
     fits = fit_charts_by_size([h[:, :2] / s for h, s in zip(local, uv_scale)],
                               [h[:, 2] / s for h, s in zip(local, z_scale)], settings=settings, rng=rng,
-                              train_mask=None if train_mask is None else [train_mask[c.members] for c in charts],
+                              train_mask=_train_masks(charts, train_mask),
                               sigma_floor=floor / z_scale, device=device)
     return fits, uv_scale, z_scale
+
+
+def _train_masks(charts: list[Chart], train_mask: np.ndarray | None) -> list[np.ndarray] | None:
+    """Per chart, ``(n_members,)`` bool: the members that train it (``train_mask`` (N,) if given, as
+    for the benchmark's oracle, else the chart's own :attr:`~scanrig.surface.charts.Chart.trained`)."""
+    if train_mask is not None:
+        return [train_mask[c.members] for c in charts]
+    if all(c.trained is None for c in charts):
+        return None
+    return [np.ones(len(c.members), bool) if c.trained is None else c.trained for c in charts]
 
 
 def _chart_noise(fits: ChartFits, z_scale: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
