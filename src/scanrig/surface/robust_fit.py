@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from scanrig.errors import InputError
+from scanrig.surface.adam import Adam
 from scanrig.surface.hampel import HampelConstants, check_q, hampel_rho, hampel_weight, robust_scale
 from scanrig.surface.local_start import fill_with_quadratic, robust_start
 from scanrig.surface.mixture import chart_neighbours, inlier_posterior
@@ -387,7 +388,7 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     rows = _Blocks.of(x, t, copy_mask.reshape(-1, n_max), n_folds=settings.n_folds)
 
     n_loop = settings.robust_epochs if settings.loss == "hampel" else settings.epochs
-    opt, sched = _adam(nets, settings, n_loop, settings.warmup_epochs if settings.loss == "hampel" else 0)
+    opt = _adam(nets, settings, n_loop, settings.warmup_epochs if settings.loss == "hampel" else 0)
     cut = np.full(n_charts, np.inf)
     weight = rows.m.double()
     history = []
@@ -415,10 +416,9 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         cuts = rows.per_block(state["torch"])
         weight = _irls_weight(r.detach(), rows.m, settings.loss, cuts)
         loss_per_block = _robust_loss(r, rows.m, settings.loss, cuts) / rows.n_train
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         loss_per_block.sum().backward()
         opt.step()
-        sched.step()
     weight = _output_layer_irls(nets, rows, weight, settings, state)
     if settings.loss == "hampel" and settings.refit:
         # reweighting step: the robust weights frozen, every copy retrained from its initial
@@ -608,19 +608,17 @@ def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.
     The schedule is the plain least-squares one (Adam with cosine decay over ``epochs``, the
     output layer at its weighted optimum every epoch).
     """
-    opt, sched = _adam(nets, settings, epochs)
+    opt = _adam(nets, settings, epochs)
     w = weight.float()
     for _ in range(epochs):
         r = rows.residual(nets, weight)
         loss_per_block = 0.5 * (w * r.square()).sum(dim=1) / rows.n_train
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         loss_per_block.sum().backward()
         opt.step()
-        sched.step()
 
 
-def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int,
-          warmup_epochs: int = 0) -> tuple[torch.optim.Adam, torch.optim.lr_scheduler.LambdaLR]:
+def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int, warmup_epochs: int = 0) -> Adam:
     """Adam on the hidden layers and its step schedule for a phase of ``epochs`` epochs.
 
     The step decays by cosine from ``settings.learning_rate`` to a twentieth of it; over the
@@ -632,8 +630,7 @@ def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int,
         cosine = floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * min(epoch, epochs) / max(epochs, 1)))
         return cosine * min(1.0, (epoch + 1) / warmup_epochs) if warmup_epochs > 0 else cosine
 
-    opt = torch.optim.Adam(nets.hidden_parameters(), lr=settings.learning_rate)
-    return opt, torch.optim.lr_scheduler.LambdaLR(opt, factor)
+    return Adam(nets.hidden_parameters(), settings.learning_rate, factor)
 
 
 def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitSettings, state: dict,
