@@ -58,12 +58,12 @@ def chart_neighbours(uv: np.ndarray, valid: np.ndarray, k: int) -> np.ndarray:
         raise InputError(f"k (neighbours per point) must be >= 1, got {k}")
     n_charts, n_max = valid.shape
     out = np.full((n_charts, n_max, k), -1, dtype=np.int64)
-    for c in range(n_charts):  # one tree per chart: C is tens to hundreds, each query vectorised
+    for c in range(n_charts):  # one tree per chart: C is tens to hundreds, each query vectorised and threaded
         cols = np.flatnonzero(valid[c])
         if cols.size == 0:
             continue
         k_c = min(k, cols.size)
-        _, nb = cKDTree(uv[c, cols]).query(uv[c, cols], k=k_c)
+        _, nb = cKDTree(uv[c, cols]).query(uv[c, cols], k=k_c, workers=-1)
         out[c, cols, :k_c] = cols[nb.reshape(cols.size, k_c)]
     return out
 
