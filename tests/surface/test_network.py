@@ -87,7 +87,7 @@ def test_tanh_matches_torch_with_first_and_second_derivatives():
 
 def _step_sizes(opt, epochs):
     """The learning rate of each of ``epochs`` steps of ``opt`` (scanrig's Adam, no gradients needed)."""
-    return np.array([opt.factor(t) * opt.lr for t in range(epochs)])
+    return np.array([opt.lr_at(t) for t in range(epochs)])
 
 
 def test_adam_schedule_is_torch_cosine_decay_times_a_linear_warm_up():

@@ -40,10 +40,9 @@ class Adam:
         self._mean = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
         self._square = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
 
-    @property
-    def current_lr(self) -> float:
-        """The learning rate of the next step."""
-        return self.lr * self.factor(self.steps)
+    def lr_at(self, step: int) -> float:
+        """The learning rate of step ``step`` (0 = the first)."""
+        return self.lr * self.factor(step)
 
     def zero_grad(self) -> None:
         """Drop the parameters' gradients (``set_to_none``)."""
@@ -53,7 +52,7 @@ class Adam:
     @torch.no_grad()
     def step(self) -> None:
         """One Adam step from the current gradients."""
-        lr = self.current_lr
+        lr = self.lr_at(self.steps)
         self.steps += 1
         step_size = lr / (1 - BETA1 ** float(self.steps))
         correction2_sqrt = (1 - BETA2 ** float(self.steps)) ** 0.5
