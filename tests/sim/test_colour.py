@@ -1,0 +1,168 @@
+"""Colour cameras: crosstalk, clipping, sub-surface halo, Bayer, JPEG and noise of `colour_frame`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scanrig.errors import InputError, ShapeError
+from scanrig.sim.colour import ColourResponse, colour_frame, halo_kernel, subsurface_halo
+from scanrig.sim.sensor import Sensor
+
+#: Measured noise variance within 5 % of the model (relative standard error of a variance from
+#: N >= 60 000 samples is sqrt(2 / N) < 0.6 %), as in test_noise.
+NOISE_REL_TOL = 0.05
+#: A JPEG round trip of a flat colour: 8-bit RGB -> YCbCr -> RGB rounds twice, at most 1 DN each.
+JPEG_FLAT_TOL_DN = 2
+#: Luma at quality 90 across a clipped stripe: the quality-90 luma quantiser steps of the
+#: lowest frequencies are 2-4 DN, so block errors stay within a few of them.
+JPEG_LUMA_TOL_DN = 8.0
+LUMA_WEIGHTS = np.array([0.299, 0.587, 0.114])
+
+#: 16-bit, 1 e-/DN, no black level: the noise-free output is the electron count itself.
+LINEAR = Sensor(bit_depth=16, gain_e_per_dn=1.0, full_well_e=60000.0, black_level_dn=0.0)
+
+
+def _stripe(shape=(64, 96), peak_e=8 * 10000.0, sigma_px=2.0, centre_px=48.3) -> np.ndarray:
+    x = np.arange(shape[1]) - centre_px
+    return np.tile(peak_e * np.exp(-0.5 * (x / sigma_px) ** 2), (shape[0], 1))
+
+
+def test_crosstalk_ratios_on_an_unclipped_pixel():
+    laser = np.zeros((5, 5))
+    laser[2, 2] = 10000.0
+    scene = np.full((5, 5), 500.0)
+    rgb = colour_frame(scene, laser, LINEAR, ColourResponse(), None)
+    assert rgb.dtype == np.uint16 and rgb.shape == (5, 5, 3)
+    # 500 * ambient (1, 1, 0.92) + 10000 * laser (1, 0.06, 0.04)
+    assert rgb[2, 2].tolist() == [10500, 1100, 860]
+    assert rgb[0, 0].tolist() == [500, 500, 460]
+
+
+def test_overexposed_stripe_clips_red_wide_and_green_blue_only_at_centre():
+    sensor = Sensor()                                    # 8-bit, full well at 255 DN
+    laser = _stripe(peak_e=8 * sensor.full_well_e)
+    rgb = colour_frame(np.full(laser.shape, 3500.0), laser, sensor, ColourResponse(), None)
+    row = rgb[32].astype(int)
+    clipped = np.flatnonzero(row[:, 0] == sensor.max_dn)
+    # R rounds to full scale from (max_dn - 0.5 - black level) * gain = 9902 e-: 3500 + 8e4 exp(-x²/8)
+    # reaches it for |x| <= 4.49 px around 48.3, i.e. columns 44 to 52, nine pixels (G, B: one peak)
+    assert clipped.tolist() == list(range(44, 53))
+    # G: 0.06 * 8 * full well + 3500 e- at the peak, no clipping, maximum at the beam's centre
+    assert np.argmax(row[:, 1]) == 48 and row[:, 1].max() < sensor.max_dn
+    assert row[48, 1] == round((3500 + 0.06 * laser[32, 48]) / sensor.gain_e_per_dn + sensor.black_level_dn)
+
+
+def test_clipping_at_sensor_max_in_every_channel():
+    sensor = Sensor()
+    laser = np.full((4, 4), 30 * sensor.full_well_e)
+    rgb = colour_frame(np.zeros((4, 4)), laser, sensor, ColourResponse(), None)
+    assert (rgb == sensor.max_dn).all()
+
+
+def test_halo_kernel_is_normalised_and_exponential():
+    k = halo_kernel(3.0).astype(np.float64)
+    h = k.shape[0] // 2
+    assert k.shape == (2 * h + 1, 2 * h + 1) and h == 24
+    assert k.sum() == pytest.approx(1.0, abs=1e-6)
+    assert k[h, h + 3] / k[h, h] == pytest.approx(np.exp(-1.0), rel=1e-6)
+    assert np.array_equal(k, k.T) and np.array_equal(k, k[::-1])
+
+
+def test_halo_conserves_energy_and_keeps_the_direct_fraction():
+    laser = np.zeros((81, 81))
+    laser[40, 40] = 1000.0
+    response = ColourResponse(halo_fraction=0.3, halo_radius_px=2.0)
+    out = subsurface_halo(laser, response).astype(np.float64)
+    k = halo_kernel(2.0)
+    assert out.sum() == pytest.approx(1000.0, rel=1e-5)
+    assert out[40, 40] == pytest.approx(1000.0 * (0.7 + 0.3 * k[16, 16]), rel=1e-5)
+    assert out[40, 44] == pytest.approx(300.0 * k[16, 20], rel=1e-5)
+    assert np.array_equal(subsurface_halo(laser, ColourResponse()), laser.astype(np.float32))
+
+
+def test_halo_reaches_the_output_in_the_laser_channel():
+    laser = np.zeros((41, 41))
+    laser[20, 20] = 20000.0
+    rgb = colour_frame(np.zeros_like(laser), laser, LINEAR, ColourResponse(halo_fraction=0.5, halo_radius_px=2.0),
+                       None).astype(np.float64)
+    expect_r = 10000.0 * halo_kernel(2.0)[16, 19]        # 3 px from the beam
+    assert abs(rgb[20, 23, 0] - expect_r) <= 0.5
+    assert abs(rgb[20, 23, 1] - 0.06 * expect_r) <= 0.5
+
+
+def test_jpeg_differs_from_lossless_by_a_bounded_amount():
+    sensor = Sensor()
+    laser = _stripe(peak_e=8 * sensor.full_well_e)
+    scene = np.full(laser.shape, 3500.0)
+    lossless = colour_frame(scene, laser, sensor, ColourResponse(), None).astype(np.float64)
+    jpeg = colour_frame(scene, laser, sensor, ColourResponse(jpeg_quality=90), None).astype(np.float64)
+    assert jpeg.shape == lossless.shape
+    diff = jpeg - lossless
+    assert np.abs(diff[:, :32]).max() <= JPEG_FLAT_TOL_DN and np.abs(diff[:, -32:]).max() <= JPEG_FLAT_TOL_DN
+    assert np.abs(diff @ LUMA_WEIGHTS).max() <= JPEG_LUMA_TOL_DN
+    # 4:2:0 smears the colour difference R - G across the stripe's edges: the red edge moves
+    assert np.abs(diff[..., 0]).max() > JPEG_LUMA_TOL_DN
+
+
+def test_bayer_demosaic_of_a_flat_field_is_flat():
+    sensor = Sensor()
+    rgb = colour_frame(np.full((32, 48), 2000.0), np.full((32, 48), 1000.0), sensor,
+                       ColourResponse(bayer=True), None)
+    expect = colour_frame(np.full((1, 1), 2000.0), np.full((1, 1), 1000.0), sensor, ColourResponse(), None)[0, 0]
+    assert (rgb == expect).all()
+
+
+def test_bayer_keeps_rgb_order():
+    rgb = colour_frame(np.zeros((8, 8)), np.full((8, 8), 5000.0), Sensor(), ColourResponse(bayer=True), None)
+    assert rgb[4, 4, 0] > rgb[4, 4, 1] > rgb[4, 4, 2]
+
+
+def test_seeded_noise_variance_matches_the_sensor_model_per_channel(rng):
+    sensor = Sensor(bit_depth=12, gain_e_per_dn=10000.0 / 4095, read_noise_e=10.0)
+    response = ColourResponse(laser_rgb=(1.0, 0.15, 0.05), ambient_rgb=(1.0, 0.8, 0.5))
+    scene, laser = np.full((96, 96), 2000.0), np.full((96, 96), 4000.0)
+    frames = np.stack([colour_frame(scene, laser, sensor, response, rng) for _ in range(8)]).astype(np.float64)
+    measured = frames.var(axis=0, ddof=1).mean(axis=(0, 1))
+    signal_e = 2000.0 * np.array(response.ambient_rgb) + 4000.0 * np.array(response.laser_rgb)
+    model = sensor.noise_var_dn2(signal_e)
+    assert np.all(np.abs(measured / model - 1) < NOISE_REL_TOL), (measured, model)
+    mean_dn = signal_e / sensor.gain_e_per_dn + sensor.black_level_dn
+    assert np.all(np.abs(frames.mean(axis=(0, 1, 2)) - mean_dn) < 0.05 * np.sqrt(model))
+
+
+def test_same_seed_same_frame():
+    scene, laser = np.full((16, 16), 2000.0), _stripe((16, 16), centre_px=8.0)
+    a = colour_frame(scene, laser, Sensor(), ColourResponse(bayer=True), np.random.default_rng(5))
+    b = colour_frame(scene, laser, Sensor(), ColourResponse(bayer=True), np.random.default_rng(5))
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("laser_rgb", (1.0, 0.1), "colour laser_rgb must be 3 finite numbers >= 0, not all 0, got (1.0, 0.1)"),
+    ("laser_rgb", (1.0, -0.1, 0.0), "colour laser_rgb must be 3 finite numbers >= 0, not all 0, got (1.0, -0.1, 0.0)"),
+    ("ambient_rgb", (0, 0, 0), "colour ambient_rgb must be 3 finite numbers >= 0, not all 0, got (0, 0, 0)"),
+    ("ambient_rgb", "white", "colour ambient_rgb must be 3 finite numbers >= 0, not all 0, got 'white'"),
+    ("halo_fraction", 1.5, "colour halo_fraction must be in [0, 1], got 1.5"),
+    ("halo_radius_px", 0.0, "colour halo_radius_px must be a positive number of pixels, got 0.0"),
+    ("bayer", 1, "colour bayer must be true or false, got 1"),
+    ("jpeg_quality", 0, "colour jpeg_quality must be an integer in [1, 100] or absent, got 0"),
+    ("jpeg_quality", 90.0, "colour jpeg_quality must be an integer in [1, 100] or absent, got 90.0"),
+])
+def test_bad_response_fields(field, value, message):
+    with pytest.raises(InputError) as err:
+        ColourResponse(**{field: value})
+    assert str(err.value) == message
+
+
+def test_jpeg_needs_an_8_bit_sensor():
+    with pytest.raises(InputError) as err:
+        colour_frame(np.zeros((4, 4)), np.zeros((4, 4)), Sensor(bit_depth=12, gain_e_per_dn=2.5),
+                     ColourResponse(jpeg_quality=90), None)
+    assert str(err.value) == "colour jpeg_quality needs an 8-bit sensor, got bit_depth 12"
+
+
+def test_scene_and_laser_shapes_must_match():
+    with pytest.raises(ShapeError) as err:
+        colour_frame(np.zeros((4, 4)), np.zeros((4, 5)), Sensor(), ColourResponse(), None)
+    assert str(err.value) == "colour_frame: scene_e and laser_e must be (H, W) of the same shape, got (4, 4) and (4, 5)"
