@@ -1,4 +1,4 @@
-"""Calibration on real images and detections from ../shared/data (skipped when absent)."""
+"""Calibration on real images and detections from tests/data."""
 
 from __future__ import annotations
 
@@ -16,15 +16,16 @@ from scanrig.calibration.pipeline import calibrate
 from scanrig.cli.main import main
 from scanrig.io.rig_file import load_rig_info
 from scanrig.targets import charuco
+from tests.data_paths import real_data
 
 #: OpenCV's ``calibrateCamera`` RMS on the same corners may differ from ours by round-off of the
 #: solvers' stopping points; ours must not exceed it by more than this (pixels).
 RMS_SLACK_PX = 1e-3
 
 
-def opencv_stereo_session(shared: Path, root: Path) -> Path:
+def opencv_stereo_session(root: Path) -> Path:
     """calibration/left|right/NN.jpg (symlinks) + a 9x6 chessboard target.toml (square 0.025 unit)."""
-    src = shared / "opencv-stereo-9x6"
+    src = real_data("opencv-stereo-9x6")
     for side in ("left", "right"):
         (root / "calibration" / side).mkdir(parents=True)
         for img in sorted(src.glob(f"{side}*.jpg")):
@@ -35,11 +36,7 @@ def opencv_stereo_session(shared: Path, root: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def opencv_calibrated(tmp_path_factory):
-    from tests.conftest import SHARED_DATA
-
-    if not (SHARED_DATA / "opencv-stereo-9x6").is_dir():
-        pytest.skip("real data folder opencv-stereo-9x6 is absent")
-    root = opencv_stereo_session(SHARED_DATA, tmp_path_factory.mktemp("ocv"))
+    root = opencv_stereo_session(tmp_path_factory.mktemp("ocv"))
     assert main(["calibrate", str(root), "--no-plots"]) == 0
     return root
 
@@ -109,8 +106,8 @@ def test_opencv_stereo_baseline_and_board_size(opencv_calibrated):
     assert np.nanstd(spacing) < 0.0005
 
 
-def _caliscope_observations(shared: Path) -> Observations:
-    path = shared / "caliscope-4cam-charuco" / "post_optimization" / "CHARUCO" / "xy_CHARUCO.csv"
+def _caliscope_observations() -> Observations:
+    path = real_data("caliscope-4cam-charuco") / "post_optimization" / "CHARUCO" / "xy_CHARUCO.csv"
     rows = list(csv.DictReader(open(path, newline="")))
     shots = sorted({int(r["sync_index"]) for r in rows})
     names = [f"cam_{i}" for i in range(4)]
@@ -121,8 +118,8 @@ def _caliscope_observations(shared: Path) -> Observations:
         names, [str(s) for s in shots], {n: (1280, 720) for n in names})
 
 
-def test_caliscope_four_cameras_jointly(shared_data):
-    obs = _caliscope_observations(shared_data)
+def test_caliscope_four_cameras_jointly():
+    obs = _caliscope_observations()
     target = charuco((4, 5), 0.054, 0.0405, "DICT_4X4_1000")
     result = calibrate(obs, target, "opencv4", cross_validate=False)
     assert result.rig.names == ["cam_0", "cam_1", "cam_2", "cam_3"]
@@ -145,7 +142,7 @@ def test_caliscope_four_cameras_jointly(shared_data):
 
 
 #: Stereo baseline of the MRPT pairs from OpenCV's own stereo calibration, in squares
-#: (../shared/data/mrpt-stereo-9x6/PROVENANCE.md); the corner noise of 0.2 px over 4 views
+#: (tests/data/mrpt-stereo-9x6/PROVENANCE.md); the corner noise of 0.2 px over 4 views
 #: leaves about 0.1 % on it.
 MRPT_BASELINE_SQUARES = 3.515
 
@@ -155,11 +152,8 @@ def test_mrpt_four_pairs_converge_and_flag_what_they_cannot_determine(tmp_path):
     from scanrig.calibration.pipeline import detect_session
     from scanrig.io.session import Session
     from scanrig.targets import load_target
-    from tests.conftest import SHARED_DATA
 
-    src = SHARED_DATA / "mrpt-stereo-9x6"
-    if not src.is_dir():
-        pytest.skip("real data folder mrpt-stereo-9x6 is absent")
+    src = real_data("mrpt-stereo-9x6")
     for side in ("left", "right"):
         (tmp_path / "calibration" / side).mkdir(parents=True)
         for img in sorted(src.glob(f"*_{side}.jpg")):

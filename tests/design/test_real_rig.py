@@ -1,4 +1,4 @@
-"""The uncertainty model on a real rig: caliscope's 4-webcam ChArUco calibration (../shared/data).
+"""The uncertainty model on a real rig: caliscope's 4-webcam ChArUco calibration (tests/data).
 
 caliscope triangulated the board corners of 57 frames with its calibrated rig. Neighbouring
 corners are 54 mm apart on the board, so the spread of their triangulated distances measures the
@@ -9,10 +9,10 @@ rig's real 3-D noise. The design's model predicts it from each camera's reprojec
 import tomllib
 
 import numpy as np
-import pytest
 
 from scanrig.design import accuracy
 from scanrig.geometry import Camera
+from tests.data_paths import real_data
 
 SQUARE_M = 0.054
 #: The distance spread of 923 neighbour pairs has a relative standard error of 1/sqrt(2 * 923)
@@ -31,10 +31,8 @@ def load(folder):
     return cams, xy, points
 
 
-def test_predicted_neighbour_distance_spread_bounds_the_real_one(shared_data):
-    folder = shared_data / "caliscope-4cam-charuco" / "post_optimization"
-    if not folder.is_dir():
-        pytest.skip(f"{folder} is absent")
+def test_predicted_neighbour_distance_spread_bounds_the_real_one():
+    folder = real_data("caliscope-4cam-charuco") / "post_optimization"
     cams, xy, points = load(folder)
     residuals = {c: [] for c in cams}
     seen_by = {}

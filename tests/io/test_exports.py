@@ -11,6 +11,7 @@ from scanrig.geometry import Camera, Rig
 from scanrig.io.colmap_text import export_colmap_text
 from scanrig.io.mrcal_model import cameramodel_text, export_cameramodels
 from scanrig.io.opencv_yaml import export_opencv_yaml, import_opencv_yaml
+from tests.data_paths import real_data
 from tests.io.test_rig_file import assert_same_rig, make_rig
 
 
@@ -25,8 +26,8 @@ def test_opencv_yaml_round_trip_is_exact_and_cv2_reads_it(tmp_path):
     assert fs.getNode("camera_1").getNode("name").string() == "cam10"
 
 
-def test_imports_opencv_calibration_sample_output(shared_data):
-    rig = import_opencv_yaml(shared_data / "opencv-stereo-9x6" / "left_intrinsics.yml", name="left")
+def test_imports_opencv_calibration_sample_output():
+    rig = import_opencv_yaml(real_data("opencv-stereo-9x6") / "left_intrinsics.yml", name="left")
     cam = rig["left"]
     # Reference values from the file's PROVENANCE.md (OpenCV's published result).
     assert (cam.width, cam.height, cam.model) == (640, 480, "opencv5")

@@ -1,23 +1,17 @@
 """Real camera images (not laser images): the detectors run, stay in the frame and stay honest."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import scanrig
 from scanrig.io.session import read_image
 from scanrig.laser.overlay import render_overlay
-
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "opencv-stereo-9x6"
+from tests.data_paths import real_data
 
 
 @pytest.fixture(scope="module")
 def image():
-    path = DATA / "left01.jpg"
-    if not path.exists():
-        pytest.skip(f"real data not available at {DATA}")
-    return read_image(path)
+    return read_image(real_data("opencv-stereo-9x6") / "left01.jpg")
 
 
 @pytest.mark.parametrize("detect", [scanrig.detect_spots, scanrig.detect_stripe])

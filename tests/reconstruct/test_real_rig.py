@@ -1,6 +1,6 @@
 """Real data: triangulating a real 4-webcam rig's ChArUco corners (caliscope, BSD-2-Clause).
 
-The rig, its calibration and its detections are in ``../shared/data/caliscope-4cam-charuco``
+The rig, its calibration and its detections are in ``tests/data/caliscope-4cam-charuco``
 (see its PROVENANCE.md). Each corner seen by two or more cameras is triangulated with the
 published calibration; neighbouring corners on the board must come out one square (54 mm) apart,
 and the points must agree with caliscope's own triangulation.
@@ -14,6 +14,7 @@ import pytest
 
 from scanrig.geometry import Camera, Rig
 from scanrig.geometry.triangulation import triangulate
+from tests.data_paths import real_data
 
 SQUARE_M = 0.054
 #: caliscope's own points give 53.8 ± 0.8 mm between neighbours (PROVENANCE.md); ours must match
@@ -26,10 +27,8 @@ MEDIAN_AGREEMENT_M = 5e-3
 
 
 @pytest.fixture
-def caliscope(shared_data):
-    root = shared_data / "caliscope-4cam-charuco" / "post_optimization"
-    if not root.is_dir():
-        pytest.skip(f"{root} is absent")
+def caliscope():
+    root = real_data("caliscope-4cam-charuco") / "post_optimization"
     doc = tomllib.loads((root / "camera_array.toml").read_text())
     cams = []
     for key in sorted(doc["cameras"], key=int):
