@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import numpy as np
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD
 from scanrig.geometry.uncertainty import sigma_from_covariance
+from scanrig.io.object_poses import OBJECT_POSES_FILE, object_poses_path, read_object_poses
 from scanrig.io.rig_file import load_rig
 from scanrig.io.session import Session, read_image
 from scanrig.laser.traces import read_traces
@@ -135,6 +137,10 @@ def reconstruct_session(
             raise FileFormatError(light_plane_path, f"camera {camera!r} is not in {rig_path} (cameras: {rig.names})")
         cloud, summary = _classic_single_camera(rig[camera], plane, table, frames, sigma_floor_px)
         mode = f"stripe, light plane of {camera}"
+        poses_path = object_poses_path(session.root)
+        if poses_path.is_file():
+            cloud = _to_object_frame(cloud, frames, read_object_poses(poses_path), poses_path)
+            mode += f", object frame of {OBJECT_POSES_FILE.as_posix()}"
     elif mode == "spot":
         cloud, summary, _ = reconstruct_spots(rig, table, frames, sigma_floor_px, gate_probability, min_angle_rad,
                                               keep_ambiguous)
@@ -176,3 +182,40 @@ def _classic_single_camera(camera, plane, table, frames, sigma_floor_px):
     cloud = PointCloud(p[ok], sigma_from_covariance(cov_p[ok]), np.ones(ok.sum()), np.full(ok.sum(), np.nan),
                        frame[ok], flags)
     return cloud, {"frames": len(frames), "points": len(cloud), "detections": len(q)}
+
+
+def _to_object_frame(cloud: PointCloud, frames, poses: dict, poses_path: Path) -> PointCloud:
+    """Map each frame's points from the world into the moving object's frame (``object_from_world``).
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Points in the world frame; ``cloud.frame`` indexes ``frames``.
+    frames : list of str
+        Frame stems in order.
+    poses : dict of str to RigidTransform
+        ``world_from_object`` per frame stem (:func:`~scanrig.io.object_poses.read_object_poses`).
+    poses_path : Path
+        The poses file, for the message.
+
+    Returns
+    -------
+    PointCloud
+        The same points in the object frame. ``sigma`` (the covariance's largest axis) is unchanged
+        by a rigid motion.
+
+    Raises
+    ------
+    FileFormatError
+        If a frame with points has no pose.
+    """
+    used = [frames[i] for i in np.unique(cloud.frame)]
+    missing = [stem for stem in used if stem not in poses]
+    if missing:
+        raise FileFormatError(poses_path, f"has no pose for {len(missing)} scan frame(s) with points, e.g. "
+                                          f"{missing[:5]}; give world_from_object of every frame")
+    # frames without points may lack a pose: the identity stands in, unused
+    R = np.stack([poses[f].R if f in poses else np.eye(3) for f in frames])
+    t = np.stack([poses[f].t if f in poses else np.zeros(3) for f in frames])
+    p_object = np.einsum("nji,nj->ni", R[cloud.frame], cloud.p_world - t[cloud.frame])
+    return dataclasses.replace(cloud, p_world=p_object)

@@ -17,8 +17,8 @@ import numpy as np
 from scanrig.errors import EstimationError, InputError
 from scanrig.geometry import Rig, RigidTransform
 from scanrig.io.atomic import write_text_atomic
-from scanrig.io.session import write_image
 from scanrig.sim import primitives
+from scanrig.sim.colour import still_frame, write_frame
 from scanrig.sim.materials import Material
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.render import CameraView
@@ -84,7 +84,8 @@ def calibration_sensor(room: Scene):
 
 
 def random_pose(target, rig: Rig, center_m, radius_m: float, rng: np.random.Generator) -> RigidTransform:
-    """A random ``world_from_target`` whose points are seen (in front, in the image) by >= 2 cameras.
+    """A random ``world_from_target`` whose points are seen (in front, in the image) by >= 2 cameras
+    (by the camera, in a single-camera rig).
 
     Raises
     ------
@@ -109,10 +110,15 @@ def random_pose(target, rig: Rig, center_m, radius_m: float, rng: np.random.Gene
             R = Rotation.random(random_state=rng).as_matrix()
         t = center + rng.uniform(-0.5, 0.5, size=3) * radius_m - R @ pts.mean(axis=0)
         pose = RigidTransform(R, t)
-        if _n_cameras_seeing(target, pose, rig) >= 2:
+        if _n_cameras_seeing(target, pose, rig) >= _min_cameras(rig):
             return pose
     raise EstimationError("could not place the calibration target in view of two cameras; "
                           "check that the cameras look at the scene's center_m")
+
+
+def _min_cameras(rig: Rig) -> int:
+    """Cameras that must see a calibration pose: two (they are tied together), or a lone camera."""
+    return min(2, len(rig))
 
 
 def _n_cameras_seeing(target, world_from_target: RigidTransform, rig: Rig) -> int:
@@ -136,7 +142,8 @@ def _n_cameras_seeing(target, world_from_target: RigidTransform, rig: Rig) -> in
 
 def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kind: str,
                       rng: np.random.Generator, workers: int | None = None, progress=None) -> None:
-    """Write ``target.toml``, ``calibration/<camera>/<shot>.png`` and ``truth/target_poses.csv``.
+    """Write ``target.toml``, ``calibration/<camera>/<shot>.png`` (``.jpg`` from a colour camera
+    that stores JPEG) and ``truth/target_poses.csv``.
 
     Poses are drawn from ``rng`` in order; each shot's noise has its own spawned generator.
     """
@@ -147,7 +154,7 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
     save_target(target, out / "target.toml")
     sensor = calibration_sensor(room)
     poses = [random_pose(target, rig, room.center_m, room.radius_m, rng) for _ in range(n_shots)]
-    if _n_cameras_seeing(target, RigidTransform.identity(), rig) >= 2:
+    if _n_cameras_seeing(target, RigidTransform.identity(), rig) >= _min_cameras(rig):
         # Shot 000 at the world origin: a calibration takes the target's frame at its first shot
         # as the world frame, so the calibrated rig then lives in the scene's own frame (as a
         # user defines the world by where the cube first stands) and its clouds, relocations
@@ -164,8 +171,9 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
     def render_shot(i: int) -> None:
         scene = target_scene(target, poses[i], room)
         for cam, table in zip(rig.cameras, tables):
-            image = sensor.expose(CameraView(cam, scene, sensor, ray_table=table).background_e, shot_rngs[i])
-            write_image(out / "calibration" / cam.name / f"{stems[i]}.png", image)
+            image = still_frame(CameraView(cam, scene, sensor, ray_table=table).background_e, sensor, room.colour,
+                                shot_rngs[i])
+            write_frame(out / "calibration" / cam.name / stems[i], image, room.colour)
 
     report = (lambda done: progress("calibration", done, n_shots)) if progress else None
     run_indexed(render_shot, n_shots, workers, report)

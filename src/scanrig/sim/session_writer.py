@@ -172,18 +172,28 @@ def _write_truth(out, scene, rig, poses, stems, truth_rows, scene_source, proven
     truth = out / "truth"
     save_rig(rig, truth / "rig.toml", metadata={"source": "scanrig simulate (true cameras)", **provenance},
              comments=["ground truth of a simulated session: the cameras that rendered the images"])
+    write_truth_meshes(truth, scene)
+    write_text_atomic(truth / "frames.csv", frames_csv(stems, truth_rows))
+    write_text_atomic(truth / "laser.csv", laser_csv(poses, stems))
+    if scene_source is not None:
+        write_bytes_atomic(truth / "scene.toml", Path(scene_source).read_bytes())
+
+
+def write_truth_meshes(truth: Path, scene: Scene, frame: str = "world frame") -> None:
+    """Write ``truth/meshes/<object>.ply`` of every object of ``scene`` (vertices in ``frame``, metres)."""
     for obj in scene.objects:
         v = obj.mesh.vertices
         write_ply(truth / "meshes" / f"{obj.name}.ply", {"x": v[:, 0], "y": v[:, 1], "z": v[:, 2]}, obj.mesh.faces,
                   comments=[f"scanrig simulate: object {obj.name!r}, material {obj.material.name!r}",
-                            "world frame, metres (float64)"])
+                            f"{frame}, metres (float64)"])
+
+
+def frames_csv(stems: list[str], truth_rows: list) -> str:
+    """Text of ``truth/frames.csv``: the ``(kinds, points)`` hits of each frame, world metres."""
     lines = ["frame,kind,x,y,z"]
     for stem, (kinds, points) in zip(stems, truth_rows):
         lines += [f"{stem},{k},{p[0]!r},{p[1]!r},{p[2]!r}" for k, p in zip(kinds, points.tolist())]
-    write_text_atomic(truth / "frames.csv", "\n".join(lines) + "\n")
-    write_text_atomic(truth / "laser.csv", laser_csv(poses, stems))
-    if scene_source is not None:
-        write_bytes_atomic(truth / "scene.toml", Path(scene_source).read_bytes())
+    return "\n".join(lines) + "\n"
 
 
 def laser_csv(poses: list[BeamPose], stems: list[str]) -> str:

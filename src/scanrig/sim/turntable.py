@@ -1,0 +1,271 @@
+"""A single-camera line-laser turntable scanner (as Horus, FabScan and Ciclop build it), simulated.
+
+One camera and one line laser stand still; the laser's sheet of light is vertical and contains the
+turntable's axis; the object turns by a known angle between frames, so every frame lights one
+profile of it. The scene's objects are given in the object frame, which is the world frame at
+turntable angle 0; the axis is the world's +z line through ``scene.center_m``.
+
+Placement (world frame, metres): the camera is the scene's default single camera
+(:func:`~scanrig.sim.rigs.default_rig` with ``scene.rig``: ``distance_m`` from ``center_m``,
+``elevation_deg`` up, at ``azimuth_deg``); the laser stands as far from ``center_m`` and as high,
+``triangulation_deg`` further round in azimuth, aimed at ``center_m``.
+
+Every frame is rendered with the object at its pose (background included, so each frame costs
+a full render; the multi-camera sessions of :mod:`scanrig.sim.session_writer` render their
+background once). No laser-off ``dark`` frame is written: the object moves, so one laser-off
+image does not match the other frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import InputError
+from scanrig.geometry import Camera, Rig, RigidTransform
+from scanrig.io.atomic import write_bytes_atomic, write_text_atomic
+from scanrig.io.object_poses import object_poses_path, write_object_poses
+from scanrig.io.rig_file import save_rig
+from scanrig.io.session import write_image
+from scanrig.sim.laser import BeamPose, trace_laser
+from scanrig.sim.library import load_scene, scene_path
+from scanrig.sim.parallel import run_indexed
+from scanrig.sim.pixel_rays import PixelRayTable
+from scanrig.sim.render import CameraView
+from scanrig.sim.rigs import default_rig
+from scanrig.sim.scan_setup import LASER_COLOR
+from scanrig.sim.scene import Scene
+from scanrig.sim.session_writer import Progress, frames_csv, laser_csv, write_truth_meshes
+
+#: Azimuth between the camera and the laser around the turntable axis, degrees (Ciclop: 30).
+TRIANGULATION_DEG = 30.0
+#: Built-in scene made for this rig: a matte object 400 mm from the camera.
+TURNTABLE_SCENE = "turntable"
+
+
+@dataclass(frozen=True)
+class TurntableRig:
+    """One camera, one fixed laser sheet, and the turntable's axis (world frame).
+
+    Attributes
+    ----------
+    camera : Camera
+    laser : BeamPose
+        The sheet: apex ``origin``, central ``direction`` and in-plane ``fan_axis``.
+    axis_point_m : ndarray of shape (3,)
+        A point of the turntable axis, metres.
+    axis_direction : ndarray of shape (3,)
+        Unit direction of the axis; positive angles turn counter-clockwise seen from its tip.
+    """
+
+    camera: Camera
+    laser: BeamPose
+    axis_point_m: np.ndarray
+    axis_direction: np.ndarray
+
+    def world_from_object(self, angle_rad: float) -> RigidTransform:
+        """The object's pose with the turntable at ``angle_rad`` (identity at angle 0)."""
+        from scipy.spatial.transform import Rotation
+
+        R = Rotation.from_rotvec(angle_rad * self.axis_direction).as_matrix()
+        return RigidTransform(R, self.axis_point_m - R @ self.axis_point_m)
+
+    def light_plane(self) -> tuple[np.ndarray, float]:
+        """The laser sheet as ``normal · x = offset_m`` (world frame): unit normal (3,) and offset."""
+        normal = np.cross(self.laser.direction, self.laser.fan_axis)
+        normal /= np.linalg.norm(normal)
+        return normal, float(normal @ self.laser.origin)
+
+
+def turntable_rig(scene: Scene, triangulation_deg: float = TRIANGULATION_DEG) -> TurntableRig:
+    """The camera, laser and axis of a turntable scan of ``scene`` (placement in the module notes).
+
+    Raises
+    ------
+    InputError
+        If ``triangulation_deg`` is not in (0, 90).
+    """
+    if not 0 < triangulation_deg < 90:
+        raise InputError(f"triangulation_deg must be in (0, 90) degrees, got {triangulation_deg!r}")
+    spec = scene.rig
+    centre = np.asarray(scene.center_m, dtype=np.float64)
+    camera = default_rig(1, centre, spec).cameras[0]
+    az, el = np.radians(spec.azimuth_deg + triangulation_deg), np.radians(spec.elevation_deg)
+    origin = centre + spec.distance_m * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
+    axis = np.array([0.0, 0.0, 1.0])
+    laser = BeamPose.from_any(BeamPose(origin, centre - origin, axis))  # fan made perpendicular, unit
+    return TurntableRig(camera, laser, centre, axis)
+
+
+def turntable_angles(n_frames: int) -> np.ndarray:
+    """Turntable angles of ``n_frames`` frames evenly over one turn, radians (frame 0 at 0)."""
+    if not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
+        raise InputError(f"n_frames must be a positive integer, got {n_frames!r}")
+    return 2 * np.pi * np.arange(n_frames) / n_frames
+
+
+def posed_scene(scene: Scene, world_from_object: RigidTransform) -> Scene:
+    """The scene with every object moved by ``world_from_object`` (lights and setup unchanged)."""
+    matrix = world_from_object.as_matrix()
+    objects = tuple(replace(obj, mesh=obj.mesh.copy().apply_transform(matrix)) for obj in scene.objects)
+    return replace(scene, objects=objects)
+
+
+def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: RigidTransform,
+                           table: PixelRayTable, rng: np.random.Generator):
+    """One noisy laser frame with the object at ``world_from_object``.
+
+    Parameters
+    ----------
+    rig : TurntableRig
+    scene : Scene
+        Objects in the object frame.
+    world_from_object : RigidTransform
+    table : PixelRayTable
+        The camera's ray table (shared by all frames).
+    rng : numpy.random.Generator
+        Speckle and sensor noise of this frame.
+
+    Returns
+    -------
+    image : ndarray of shape (H, W)
+        The frame, DN.
+    trace : LaserTrace
+        The laser's hits (world frame) in this frame.
+    """
+    posed = posed_scene(scene, world_from_object)
+    view = CameraView(rig.camera, posed, ray_table=table)
+    trace = trace_laser(rig.laser, scene.laser, posed)
+    electrons = view.background_e.copy()
+    window = view.laser_window(trace, rng)
+    if window is not None:
+        electrons[window.slices] += window.electrons
+    return view.sensor.expose(electrons, rng), trace
+
+
+def simulate_turntable_session(
+    out: str | Path,
+    scene: Scene | str = TURNTABLE_SCENE,
+    n_frames: int = 90,
+    rng: np.random.Generator | None = None,
+    with_calibration: bool = True,
+    n_shots: int = 12,
+    target_kind: str = "cube",
+    triangulation_deg: float = TRIANGULATION_DEG,
+    workers: int | None = None,
+    progress: Progress | None = None,
+    provenance: dict | None = None,
+) -> Path:
+    """Render a single-camera turntable line-laser session with its ground truth.
+
+    Written files (besides the layout of DESIGN.md §4)::
+
+        scan/cam0/<frame>.png        one frame per turntable angle (no dark frame: the object moves)
+        scan/object_poses.csv        world_from_object of every frame (the turntable's angles)
+        calibration/cam0/<shot>.png, target.toml   (with_calibration; shot 000 at the world origin
+                                     when the camera sees it, so the calibrated world is the scene's)
+        truth/rig.toml               the true camera
+        truth/light_plane.toml       the true laser sheet (world frame; exact, so zero residual)
+        truth/meshes/<object>.ply    object meshes in the object frame (the world at angle 0)
+        truth/frames.csv             true laser hits of every frame, world frame
+        truth/laser.csv              the (fixed) laser sheet of every frame
+        truth/target_poses.csv       world_from_target of every calibration shot
+        truth/scene.toml             copy of the scene file
+
+    Parameters
+    ----------
+    out : str or Path
+        Session folder to create (may exist; these files are overwritten).
+    scene : Scene or str
+        Objects in the object frame; a built-in name or a scene file.
+    n_frames : int
+        Frames, evenly over one turn.
+    rng : numpy.random.Generator
+        Source of all randomness (noise, speckle, target poses).
+    with_calibration : bool
+        Also write the calibration target shots.
+    n_shots : int
+        Calibration target poses.
+    target_kind : {"cube", "chessboard", "charuco"}
+    triangulation_deg : float
+        Azimuth between camera and laser around the axis, degrees.
+    workers : int, optional
+        Rendering processes (default: the number of CPUs, at most 4).
+    progress : callable, optional
+        Called as ``progress(stage, done, total)``.
+    provenance : dict, optional
+        Recorded in ``session.toml`` and ``truth/rig.toml`` (e.g. the seed and command line).
+
+    Returns
+    -------
+    Path
+        The session folder.
+    """
+    from scanrig.reconstruct.light_plane import LightPlane, save_light_plane
+
+    if rng is None:
+        raise InputError("simulate_turntable_session needs rng (a numpy.random.Generator)")
+    angles = turntable_angles(n_frames)
+    if with_calibration:
+        from scanrig.sim.calibration_shots import default_target
+
+        default_target(target_kind)  # an unknown target fails now, not after rendering the scan
+    scene_source = None
+    if not isinstance(scene, Scene):
+        scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
+        scene = load_scene(scene)
+    rig = turntable_rig(scene, triangulation_deg)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: output session folder is an existing file")
+    progress = progress or (lambda stage, done, total: None)
+    provenance = dict(provenance or {})
+    frame_rngs = rng.spawn(n_frames)
+    (calib_rng,) = rng.spawn(1)
+
+    name = rig.camera.name
+    truth = out / "truth"
+    for folder in (truth / "meshes", out / "scan" / name):
+        folder.mkdir(parents=True, exist_ok=True)
+    stems = [f"{i:05d}" for i in range(n_frames)]
+    poses = {stem: rig.world_from_object(a) for stem, a in zip(stems, angles)}
+    table = PixelRayTable(rig.camera)
+    table.xy  # noqa: B018 - solve the camera's rays once, before forking
+
+    def render_one(i: int):
+        image, trace = render_turntable_frame(rig, scene, poses[stems[i]], table, frame_rngs[i])
+        write_image(out / "scan" / name / f"{stems[i]}.png", image)
+        return trace.truth_kind, trace.truth_points
+
+    truth_rows = run_indexed(render_one, n_frames, workers, lambda done: progress("frames", done, n_frames))
+    write_object_poses(object_poses_path(out), poses)
+
+    save_rig(Rig([rig.camera]), truth / "rig.toml", metadata={"source": "scanrig simulate (true camera)",
+                                                             **provenance},
+             comments=["ground truth of a simulated turntable session: the camera that rendered the images"])
+    normal, offset = rig.light_plane()
+    exact = LightPlane(normal, offset, rig.laser.origin, np.array([rig.laser.direction, rig.laser.fan_axis]),
+                       np.ones(2), 0.0, 1)
+    save_light_plane(truth / "light_plane.toml", exact, name,
+                     comments=["ground truth of a simulated turntable session: the laser sheet (exact)"])
+    write_truth_meshes(truth, scene, "object frame (the world frame at turntable angle 0)")
+    write_text_atomic(truth / "frames.csv", frames_csv(stems, truth_rows))
+    write_text_atomic(truth / "laser.csv", laser_csv([rig.laser] * n_frames, stems))
+    if scene_source is not None:
+        write_bytes_atomic(truth / "scene.toml", Path(scene_source).read_bytes())
+
+    settings = {"cameras": [name], "laser_mode": "stripe", "laser_color": LASER_COLOR,
+                "created_by": "scanrig simulate --rig turntable",
+                **{k: v for k, v in provenance.items() if k == "seed"}}
+    if with_calibration:
+        from scanrig.sim.calibration_shots import write_calibration
+
+        write_calibration(out, scene, Rig([rig.camera]), n_shots, target_kind, calib_rng, workers, progress)
+        settings["target"] = "target.toml"
+    import tomli_w
+
+    write_text_atomic(out / "session.toml", "# simulated turntable session; ground truth in truth/\n"
+                      + tomli_w.dumps(settings))
+    return out
