@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from scanrig.errors import InputError, ShapeError
+from scanrig.errors import FileFormatError, InputError, ShapeError
+from scanrig.sim import load_scene
 from scanrig.sim.colour import ColourResponse, colour_frame, halo_kernel, subsurface_halo
+from scanrig.sim.laser_exposure import nominal_peak_e_per_W
+from scanrig.sim.scene_file import load_scene_file
 from scanrig.sim.sensor import Sensor
 
 #: Measured noise variance within 5 % of the model (relative standard error of a variance from
@@ -166,3 +171,70 @@ def test_scene_and_laser_shapes_must_match():
     with pytest.raises(ShapeError) as err:
         colour_frame(np.zeros((4, 4)), np.zeros((4, 5)), Sensor(), ColourResponse(), None)
     assert str(err.value) == "colour_frame: scene_e and laser_e must be (H, W) of the same shape, got (4, 4) and (4, 5)"
+
+
+# --- scene files ------------------------------------------------------------------------------------
+SCENE = """
+name = "t"
+[materials.paint]
+kind = "matte"
+[[objects]]
+name = "ball"
+shape = "sphere"
+radius_m = 0.05
+material = "paint"
+"""
+
+
+def _scene_file(tmp_path, extra: str):
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE + extra)
+    return path
+
+
+def test_colour_stripe_scene_loads_a_colour_camera_and_overexposed_laser():
+    scene = load_scene("colour_stripe")
+    assert scene.colour == ColourResponse(laser_rgb=(1.0, 0.07, 0.08), ambient_rgb=(1.0, 1.0, 0.92),
+                                          halo_fraction=0.3, halo_radius_px=2.0, bayer=True, jpeg_quality=90)
+    peak_e = scene.laser.stripe_power_W * nominal_peak_e_per_W(scene.laser, scene.sensor, scene.rig,
+                                                                 scene.center_m, "stripe")
+    assert peak_e == pytest.approx(16.0 * scene.sensor.full_well_e, rel=1e-12)
+
+
+def test_grey_scenes_have_no_colour(tmp_path):
+    assert load_scene("default").colour is None
+    assert load_scene_file(_scene_file(tmp_path, "\n[camera]\ncolor = false\n")).colour is None
+
+
+def test_camera_table_sets_the_response_and_only_overexposure_for_grey(tmp_path):
+    scene = load_scene_file(_scene_file(tmp_path, "\n[camera]\ncolor = true\nlaser_rgb = [1.0, 0.1, 0.1]\n"))
+    assert scene.colour == ColourResponse(laser_rgb=(1.0, 0.1, 0.1))
+    grey = load_scene_file(_scene_file(tmp_path, "\n[camera]\nlaser_overexposure = 2.0\n"))
+    assert grey.colour is None
+    assert grey.laser.power_W * nominal_peak_e_per_W(grey.laser, grey.sensor, grey.rig, grey.center_m, "spot") \
+        == pytest.approx(2.0 * grey.sensor.full_well_e, rel=1e-12)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("\n[camera]\ncolour = true\n", "[camera]: unknown field 'colour' (did you mean 'color'?)"),
+    ("\n[camera]\ncolor = 1\n", "[camera]: color must be true or false, got 1"),
+    ("\n[camera]\nhalo_fraction = 0.2\n", "[camera]: halo_fraction applies to colour cameras; set color = true"),
+    ("\n[camera]\ncolor = true\nhalo_fraction = 2.0\n", "[camera]: colour halo_fraction must be in [0, 1], got 2.0"),
+    ("\n[camera]\ncolor = true\njpeg_quality = 90\n[sensor]\nbit_depth = 12\ngain_e_per_dn = 2.5\n",
+     "[camera]: colour jpeg_quality needs an 8-bit sensor, got bit_depth 12"),
+    ("\n[camera]\nlaser_overexposure = 0\n", "[camera]: laser_overexposure must be a positive number, got 0"),
+    ("\n[camera]\nlaser_overexposure = 5.0\n[laser]\nstripe_power_W = 0.1\n",
+     "[camera]: laser_overexposure sets the laser's powers; remove stripe_power_W from [laser]"),
+    ("\n[camera]\n[camera.x]\n", "[camera]: unknown field 'x'"),
+])
+def test_bad_camera_table(tmp_path, extra, message):
+    path = _scene_file(tmp_path, extra)
+    with pytest.raises(FileFormatError) as err:
+        load_scene_file(path)
+    assert str(err.value).startswith(f"{path}: {message}")
+
+
+def test_scene_refuses_jpeg_from_a_16_bit_sensor():
+    with pytest.raises(InputError) as err:
+        replace(load_scene("colour_stripe"), sensor=Sensor(bit_depth=16, gain_e_per_dn=0.2))
+    assert str(err.value) == "colour jpeg_quality needs an 8-bit sensor, got bit_depth 16"

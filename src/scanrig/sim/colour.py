@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from scanrig.errors import InputError, ShapeError
-from scanrig.sim.sensor import Sensor
+from scanrig.io.atomic import write_bytes_atomic
+from scanrig.io.session import write_image
+from scanrig.sim.sensor import NoiseField, Sensor
 
 #: The halo kernel is cut at this many ``halo_radius_px`` (an exponential keeps 0.3 % of its
 #: energy beyond 8 radii; the kernel is renormalised after the cut).
@@ -178,8 +181,20 @@ def bayer_demosaic(rgb: np.ndarray) -> np.ndarray:
     return cv2.demosaicing(mosaic, cv2.COLOR_BayerRGGB2RGB)
 
 
+def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
+    """The JPEG file (4:2:0 chroma subsampling) of an RGB uint8 image of shape (H, W, 3) at ``quality`` (1 to 100)."""
+    import cv2
+
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality),
+              cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), params)
+    if not ok:
+        raise InputError(f"colour: OpenCV could not encode a JPEG of shape {rgb.shape}")
+    return buf.tobytes()
+
+
 def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
-    """Encode as JPEG (4:2:0 chroma subsampling) at ``quality`` and decode again.
+    """Encode as JPEG (:func:`encode_jpeg`) and decode again.
 
     Parameters
     ----------
@@ -193,12 +208,41 @@ def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
     """
     import cv2
 
-    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality),
-              cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420]
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), params)
-    if not ok:
-        raise InputError(f"colour_frame: OpenCV could not encode a JPEG of shape {rgb.shape}")
+    buf = np.frombuffer(encode_jpeg(rgb, quality), dtype=np.uint8)
     return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
+
+
+def sensor_rgb(scene_e: np.ndarray, laser_e: np.ndarray, sensor: Sensor, response: ColourResponse,
+               rng: np.random.Generator | None) -> np.ndarray:
+    """The image the camera delivers before storage: :func:`colour_frame` without the JPEG step.
+
+    Parameters and returns as :func:`colour_frame`.
+    """
+    check_sensor(response, sensor)
+    return demosaic(expose_rgb(channel_electrons(scene_e, laser_e, response), sensor, rng), response)
+
+
+def check_sensor(response: ColourResponse, sensor: Sensor) -> None:
+    """Raise :class:`InputError` if the sensor cannot store what the response asks (JPEG needs 8 bits)."""
+    if response.jpeg_quality is not None and sensor.bit_depth != 8:
+        raise InputError(f"colour jpeg_quality needs an 8-bit sensor, got bit_depth {sensor.bit_depth}")
+
+
+def expose_rgb(electrons: np.ndarray, sensor: Sensor, rng: np.random.Generator | None) -> np.ndarray:
+    """Each channel through the sensor (:meth:`Sensor.expose`, or :meth:`Sensor.expose_clean` when
+    ``rng`` is None): (H, W, 3) electrons to (H, W, 3) digital numbers of the sensor's dtype."""
+    expose = sensor.expose_clean if rng is None else (lambda e: sensor.expose(e, rng))
+    return np.stack([expose(electrons[..., c]) for c in range(3)], axis=-1)
+
+
+def demosaic(rgb: np.ndarray, response: ColourResponse) -> np.ndarray:
+    """The Bayer mosaic and demosaicing when the camera has one, else ``rgb`` unchanged."""
+    return bayer_demosaic(rgb) if response.bayer else rgb
+
+
+def stored(rgb: np.ndarray, response: ColourResponse) -> np.ndarray:
+    """The image as read back from storage (the JPEG round trip when the camera stores JPEG)."""
+    return rgb if response.jpeg_quality is None else jpeg_round_trip(rgb, response.jpeg_quality)
 
 
 def colour_frame(scene_e: np.ndarray, laser_e: np.ndarray, sensor: Sensor, response: ColourResponse,
@@ -222,13 +266,64 @@ def colour_frame(scene_e: np.ndarray, laser_e: np.ndarray, sensor: Sensor, respo
     ndarray of shape (H, W, 3), the sensor's dtype
         RGB image.
     """
-    if response.jpeg_quality is not None and sensor.bit_depth != 8:
-        raise InputError(f"colour jpeg_quality needs an 8-bit sensor, got bit_depth {sensor.bit_depth}")
-    electrons = channel_electrons(scene_e, laser_e, response)
-    expose = sensor.expose_clean if rng is None else (lambda e: sensor.expose(e, rng))
-    rgb = np.stack([expose(electrons[..., c]) for c in range(3)], axis=-1)
-    if response.bayer:
-        rgb = bayer_demosaic(rgb)
-    if response.jpeg_quality is not None:
-        rgb = jpeg_round_trip(rgb, response.jpeg_quality)
-    return rgb
+    return stored(sensor_rgb(scene_e, laser_e, sensor, response, rng), response)
+
+
+class ColourNoise:
+    """Fast full-frame noise of a colour camera's fixed background: one
+    :class:`~scanrig.sim.sensor.NoiseField` per channel, of the background times ``ambient_rgb``.
+
+    Parameters
+    ----------
+    sensor : Sensor
+    background_e : ndarray of shape (H, W)
+        Noise-free grey background electrons (unit channel response, after blur).
+    response : ColourResponse
+    rng : numpy.random.Generator
+        Draws the three banks of standard normals (once).
+    """
+
+    def __init__(self, sensor: Sensor, background_e: np.ndarray, response: ColourResponse,
+                 rng: np.random.Generator):
+        self.fields = [NoiseField(sensor, background_e * np.float32(a), rng) for a in response.ambient_rgb]
+
+    def frame(self, rng: np.random.Generator) -> np.ndarray:
+        """A noisy laser-free frame before demosaicing, shape (H, W, 3), the sensor's dtype."""
+        return np.stack([field.frame(rng) for field in self.fields], axis=-1)
+
+
+def still_frame(scene_e: np.ndarray, sensor: Sensor, response: ColourResponse | None,
+                rng: np.random.Generator) -> np.ndarray:
+    """A laser-free noisy frame before storage: grey (H, W) from :meth:`Sensor.expose` when
+    ``response`` is None, else RGB (H, W, 3) from :func:`sensor_rgb` with no laser light."""
+    if response is None:
+        return sensor.expose(scene_e, rng)
+    return sensor_rgb(scene_e, np.zeros_like(scene_e), sensor, response, rng)
+
+
+def write_frame(path_stem: Path, image: np.ndarray, response: ColourResponse | None) -> Path:
+    """Write a frame as the camera stores it: ``<stem>.jpg`` (encoded once, at the camera's
+    quality) when it stores JPEG, else lossless ``<stem>.png``.
+
+    Parameters
+    ----------
+    path_stem : Path
+        File name without suffix; its folder must exist.
+    image : ndarray
+        Grey (H, W) or RGB (H, W, 3) as delivered by the sensor (:func:`sensor_rgb`), before storage.
+    response : ColourResponse or None
+        None for a grey camera.
+
+    Returns
+    -------
+    Path
+        The file written. Reading a JPEG back gives exactly :func:`stored` of ``image``.
+    """
+    path_stem = Path(path_stem)
+    if response is None or response.jpeg_quality is None:
+        path = path_stem.with_name(path_stem.name + ".png")
+        write_image(path, image)
+    else:
+        path = path_stem.with_name(path_stem.name + ".jpg")
+        write_bytes_atomic(path, encode_jpeg(image, response.jpeg_quality))
+    return path

@@ -13,6 +13,7 @@ import numpy as np
 import trimesh
 
 from scanrig.errors import InputError
+from scanrig.sim.colour import ColourResponse, check_sensor
 from scanrig.sim.laser import LaserSpec
 from scanrig.sim.materials import Material
 from scanrig.sim.raycast import RayCaster
@@ -83,6 +84,9 @@ class Scene:
         Laser head position and optics.
     sensor : Sensor
         Exposure and noise of every camera.
+    colour : ColourResponse or None
+        How colour cameras see the laser and the room light (:mod:`scanrig.sim.colour`); None for
+        grey cameras.
     """
 
     name: str
@@ -93,6 +97,7 @@ class Scene:
     rig: RigSpec = field(default_factory=RigSpec)
     laser: LaserSpec = field(default_factory=LaserSpec)
     sensor: Sensor = field(default_factory=Sensor)
+    colour: ColourResponse | None = None
 
     def __post_init__(self):
         if not self.objects:
@@ -101,6 +106,8 @@ class Scene:
         if len(set(names)) != len(names):
             raise InputError(f"scene {self.name!r}: object names must be unique, got {names}")
         object.__setattr__(self, "objects", tuple(self.objects))
+        if self.colour is not None:
+            check_sensor(self.colour, self.sensor)
 
     @cached_property
     def raycaster(self) -> RayCaster:

@@ -21,6 +21,12 @@ takes the fields of the matching class: :class:`~scanrig.sim.scene.Lighting`,
     [sensor]
     bit_depth = 12
 
+    [camera]                          # optional: colour cameras (scanrig.sim.colour.ColourResponse)
+    color = true
+    laser_rgb = [1.0, 0.06, 0.04]
+    halo_fraction = 0.3
+    laser_overexposure = 8.0          # sets the laser's powers (scanrig.sim.laser_exposure)
+
     [materials.steel]
     kind = "metal"                    # matte | dark | metal
     specular = 0.6
@@ -52,15 +58,20 @@ from pathlib import Path
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.toml_fields import check_keys, read_toml
 from scanrig.sim import primitives
+from scanrig.sim.colour import ColourResponse, check_sensor
 from scanrig.sim.laser import LaserSpec
+from scanrig.sim.laser_exposure import overexposed_laser
 from scanrig.sim.materials import Material
 from scanrig.sim.rigs import RigSpec
 from scanrig.sim.scene import Lighting, Scene, SceneObject, place
 from scanrig.sim.sensor import Sensor
 
-_TOP = ("name", "description", "center_m", "radius_m", "lighting", "rig", "laser", "sensor", "materials", "objects")
+_TOP = ("name", "description", "center_m", "radius_m", "lighting", "rig", "laser", "sensor", "camera", "materials",
+        "objects")
 _SECTIONS = {"lighting": Lighting, "rig": RigSpec, "laser": LaserSpec, "sensor": Sensor}
 _OBJECT_COMMON = ("name", "shape", "material", "position_m", "rotation_deg")
+#: Keys of ``[camera]`` besides the fields of ColourResponse.
+_CAMERA_OWN = ("color", "laser_overexposure")
 
 
 def load_scene_file(path: str | Path) -> Scene:
@@ -84,6 +95,7 @@ def load_scene_file(path: str | Path) -> Scene:
     doc = read_toml(path)
     check_keys(doc, _TOP, ("objects",), path, "top level")
     sections = {key: _section(doc.get(key, {}), cls, path, f"[{key}]") for key, cls in _SECTIONS.items()}
+    colour = _camera(doc.get("camera", {}), doc.get("laser", {}), sections, doc.get("center_m", (0.0, 0.0, 0.1)), path)
     materials = {}
     mat_tables = doc.get("materials", {})
     if not isinstance(mat_tables, Mapping):
@@ -100,6 +112,7 @@ def load_scene_file(path: str | Path) -> Scene:
             objects=tuple(objects),
             center_m=tuple(doc.get("center_m", (0.0, 0.0, 0.1))),
             radius_m=float(doc.get("radius_m", 0.25)),
+            colour=colour,
             **sections,
         )
     except (InputError, TypeError, ValueError) as exc:
@@ -116,6 +129,40 @@ def _section(table, cls, path: Path, where: str, **fixed):
         return cls(**fixed, **values)
     except (InputError, TypeError, ValueError) as exc:
         raise FileFormatError(path, f"{where}: {exc}") from None
+
+
+def _camera(table, laser_table, sections: dict, center_m, path: Path) -> ColourResponse | None:
+    """The ``[camera]`` table: the colour response (None for grey cameras). ``laser_overexposure``
+    replaces ``sections["laser"]`` by the laser of that nominal exposure."""
+    where = "[camera]"
+    if not isinstance(table, Mapping):
+        raise FileFormatError(path, f"{where}: expected a table")
+    colour_keys = [f.name for f in dataclasses.fields(ColourResponse)]
+    check_keys(table, (*_CAMERA_OWN, *colour_keys), (), path, where)
+    color = table.get("color", False)
+    if not isinstance(color, bool):
+        raise FileFormatError(path, f"{where}: color must be true or false, got {color!r}")
+    if "laser_overexposure" in table:
+        fixed = [k for k in ("power_W", "stripe_power_W") if k in laser_table]
+        if fixed:
+            raise FileFormatError(path, f"{where}: laser_overexposure sets the laser's powers; "
+                                        f"remove {fixed[0]} from [laser]")
+        try:
+            sections["laser"] = overexposed_laser(sections["laser"], sections["sensor"], sections["rig"], center_m,
+                                                  table["laser_overexposure"])
+        except (InputError, TypeError, ValueError) as exc:
+            raise FileFormatError(path, f"{where}: {exc}") from None
+    response = {k: v for k, v in table.items() if k in colour_keys}
+    if not color:
+        if response:
+            raise FileFormatError(path, f"{where}: {sorted(response)[0]} applies to colour cameras; set color = true")
+        return None
+    colour = _section(response, ColourResponse, path, where)
+    try:
+        check_sensor(colour, sections["sensor"])
+    except InputError as exc:
+        raise FileFormatError(path, f"{where}: {exc}") from None
+    return colour
 
 
 def _object(table, index: int, materials: dict, path: Path) -> SceneObject:
