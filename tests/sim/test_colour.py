@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from scanrig.errors import FileFormatError, InputError, ShapeError
+from scanrig.io.session import read_image
 from scanrig.sim import load_scene
-from scanrig.sim.colour import ColourResponse, colour_frame, halo_kernel, subsurface_halo
+from scanrig.sim.colour import (ColourResponse, channel_electrons, colour_frame, halo_kernel, stored,
+                                subsurface_halo, write_frame)
+from scanrig.sim.laser import raster_poses, trace_laser
 from scanrig.sim.laser_exposure import nominal_peak_e_per_W
+from scanrig.sim.render import CameraView
+from scanrig.sim.scan_setup import scene_rig
 from scanrig.sim.scene_file import load_scene_file
 from scanrig.sim.sensor import Sensor
+from scanrig.sim.session_writer import simulate_session
 
 #: Measured noise variance within 5 % of the model (relative standard error of a variance from
 #: N >= 60 000 samples is sqrt(2 / N) < 0.6 %), as in test_noise.
@@ -238,3 +245,76 @@ def test_scene_refuses_jpeg_from_a_16_bit_sensor():
     with pytest.raises(InputError) as err:
         replace(load_scene("colour_stripe"), sensor=Sensor(bit_depth=16, gain_e_per_dn=0.2))
     assert str(err.value) == "colour jpeg_quality needs an 8-bit sensor, got bit_depth 16"
+
+
+# --- rendering and sessions ------------------------------------------------------------------------
+#: Rows whose direct laser peak exceeds this multiple of the full well are checked in sessions.
+STRONG_ROW_FULL_WELLS = 3.0
+#: 4:2:0 JPEG smears R - G over 2 px: where R's clipped band is only ~3 px wide (half-size images)
+#: a few rows lose the clip at the centre or move G's peak by 2 px (measured 1 to 8 % of rows).
+SESSION_ROW_FRACTION = 0.9
+
+
+def _colour_view(scale: float = 0.25):
+    scene = load_scene("colour_stripe")
+    rig = scene_rig(scene, 1, scale)
+    poses = raster_poses(scene.laser, scene.center_m, scene.radius_m, 3, "stripe")
+    return scene, rig, CameraView(rig.cameras[0], scene), poses
+
+
+def test_laser_window_grown_by_the_halo_matches_the_full_frame():
+    scene, _, view, poses = _colour_view()
+    window = view.laser_window(trace_laser(poses[1], scene.laser, scene))
+    grown = window.padded(scene.colour.halo_pad_px, view.background_e.shape)
+    laser = np.zeros_like(view.background_e)
+    laser[window.slices] = window.electrons
+    full = channel_electrons(view.background_e, laser, scene.colour)
+    inside = channel_electrons(view.background_e[grown.slices], grown.electrons, scene.colour)
+    assert np.allclose(full[grown.slices], inside, rtol=1e-5, atol=1e-3)
+    outside = full.copy()
+    outside[grown.slices] = 0.0
+    scene_only = view.background_e[..., None] * np.float32(scene.colour.ambient_rgb)
+    scene_only[grown.slices] = 0.0
+    assert np.allclose(outside, scene_only, rtol=1e-5, atol=1e-3)
+
+
+def test_jpeg_file_reads_back_as_the_stored_image(tmp_path):
+    rgb = colour_frame(np.full((32, 48), 4000.0), _stripe((32, 48), centre_px=20.0), Sensor(),
+                       ColourResponse(bayer=True), np.random.default_rng(3))
+    response = ColourResponse(bayer=True, jpeg_quality=90)
+    path = write_frame(tmp_path / "frame", rgb, response)
+    assert path.name == "frame.jpg"
+    assert np.array_equal(read_image(path), stored(rgb, response))
+    assert write_frame(tmp_path / "frame", rgb, ColourResponse()).name == "frame.png"
+    assert np.array_equal(read_image(tmp_path / "frame.png"), rgb)
+
+
+@pytest.mark.slow
+def test_colour_stripe_session_is_rgb_with_a_clipped_red_band_and_green_blue_peaks_at_the_centre(tmp_path):
+    scene, rig, view, poses = _colour_view(0.5)
+    out = simulate_session(tmp_path / "s", scene="colour_stripe", mode="stripe", n_frames=3,
+                           rng=np.random.default_rng(1), n_shots=1, rig=rig, workers=1)
+    assert tomllib.loads((out / "session.toml").read_text())["laser_color"] == "red"
+    shape = (rig.cameras[0].height, rig.cameras[0].width, 3)
+    for path in [out / "scan" / "cam0" / "dark.jpg", out / "calibration" / "cam0" / "000.jpg"]:
+        assert read_image(path).shape == shape
+    half = 8
+    for i, pose in enumerate(poses):
+        image = read_image(out / "scan" / "cam0" / f"{i:05d}.jpg")
+        assert image.shape == shape and image.dtype == np.uint8
+        image = image.astype(np.int64)
+        window = view.laser_window(trace_laser(pose, scene.laser, scene))
+        rows = np.flatnonzero(window.electrons.max(axis=1) > STRONG_ROW_FULL_WELLS * scene.sensor.full_well_e)
+        centre = window.electrons.argmax(axis=1)[rows] + window.u0      # the truth: the beam's centre
+        cols = centre[:, None] + np.arange(-half, half + 1)
+        inside = (cols.min(axis=1) >= 0) & (cols.max(axis=1) < shape[1])
+        assert inside.sum() > 100
+        profile = image[(rows + window.v0)[inside, None], cols[inside]]  # (rows, 2 half + 1, RGB)
+        r_clipped = profile[..., 0] >= scene.sensor.max_dn - 5
+        assert np.mean(r_clipped[:, half]) >= SESSION_ROW_FRACTION
+        offset = profile.argmax(axis=1) - half
+        assert np.mean(np.abs(offset[:, 1]) <= 1) >= SESSION_ROW_FRACTION
+        assert np.mean(np.abs(offset[:, 2]) <= 1) >= SESSION_ROW_FRACTION
+        # R is clipped over a wider band than G's peak
+        g_peak = profile[..., 1] >= profile[..., 1].max(axis=1, keepdims=True) - 5
+        assert np.median(r_clipped.sum(axis=1)) > np.median(g_peak.sum(axis=1))

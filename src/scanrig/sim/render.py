@@ -11,6 +11,10 @@ Image formation, in order (all linear until the sensor):
    distortion exact), the optical image at s× resolution gets speckle and the PSF, and each pixel
    averages its block (pixel integration after blur, as on a real sensor);
 4. noise, full well, gain, black level, rounding and clipping (:mod:`scanrig.sim.sensor`).
+
+A colour camera (``scene.colour``, :mod:`scanrig.sim.colour`) sees the grey background times
+``ambient_rgb`` per channel and the laser window, grown by the reach of the sub-surface halo,
+through its channel responses; the whole frame is then demosaiced and, as stored, JPEG-coded.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from functools import cached_property
 import numpy as np
 
 from scanrig.geometry import Camera
+from scanrig.sim.colour import ColourNoise, channel_electrons, colour_frame, demosaic, expose_rgb, stored
 from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
 from scanrig.sim.materials import specular_lobe
 from scanrig.sim.pixel_rays import PixelRayTable
@@ -51,6 +56,18 @@ class Window:
         h, w = self.electrons.shape
         return slice(self.v0, self.v0 + h), slice(self.u0, self.u0 + w)
 
+    def padded(self, pad: int, shape) -> Window:
+        """The window grown by ``pad`` pixels on every side (no electrons there), cut to an image of
+        ``shape`` (H, W)."""
+        if pad == 0:
+            return self
+        h, w = self.electrons.shape
+        v0, u0 = max(0, self.v0 - pad), max(0, self.u0 - pad)
+        v1, u1 = min(shape[0], self.v0 + h + pad), min(shape[1], self.u0 + w + pad)
+        out = np.zeros((v1 - v0, u1 - u0), dtype=self.electrons.dtype)
+        out[self.v0 - v0:self.v0 - v0 + h, self.u0 - u0:self.u0 - u0 + w] = self.electrons
+        return Window(v0, u0, out)
+
 
 class CameraView:
     """A camera looking at a scene.
@@ -72,6 +89,7 @@ class CameraView:
         self.camera = camera
         self.scene = scene
         self.sensor = sensor or scene.sensor
+        self.colour = scene.colour
         self._rng = rng
         self.ray_table = ray_table or PixelRayTable(camera)
 
@@ -101,10 +119,12 @@ class CameraView:
         return self.sensor.blur(radiance * self.sensor.e_per_radiance)
 
     @cached_property
-    def noise(self) -> NoiseField:
+    def noise(self) -> NoiseField | ColourNoise:
         """The camera's fast full-frame noise generator (needs ``rng`` at construction)."""
         if self._rng is None:
             raise ValueError("CameraView needs rng to draw noisy frames")
+        if self.colour is not None:
+            return ColourNoise(self.sensor, self.background_e, self.colour, self._rng)
         return NoiseField(self.sensor, self.background_e, self._rng)
 
     def _radiance_background(self, origin: np.ndarray, dirs: np.ndarray):
@@ -216,13 +236,36 @@ class CameraView:
             img[win.slices] += win.electrons
         return img
 
-    def frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
-        """A noisy digital frame (laser-free when ``trace`` is None), shape (H, W)."""
+    def clean_frame(self, trace: LaserTrace | None = None) -> np.ndarray:
+        """Noise-free digital frame as stored: (H, W) grey, or (H, W, 3) RGB for a colour camera."""
+        if self.colour is None:
+            return self.sensor.expose_clean(self.clean_frame_e(trace))
+        laser = np.zeros_like(self.background_e)
+        win = self.laser_window(trace) if trace is not None else None
+        if win is not None:
+            laser[win.slices] = win.electrons
+        return colour_frame(self.background_e, laser, self.sensor, self.colour, None)
+
+    def sensor_frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
+        """A noisy digital frame as the camera delivers it, before storage (laser-free when
+        ``trace`` is None): (H, W) grey, or (H, W, 3) RGB, demosaiced, for a colour camera."""
         img = self.noise.frame(rng)
         win = self.laser_window(trace, rng) if trace is not None else None
+        if self.colour is None:
+            if win is not None:
+                img[win.slices] = self.sensor.expose(self.background_e[win.slices] + win.electrons, rng)
+            return img
         if win is not None:
-            img[win.slices] = self.sensor.expose(self.background_e[win.slices] + win.electrons, rng)
-        return img
+            win = win.padded(self.colour.halo_pad_px, img.shape[:2])
+            electrons = channel_electrons(self.background_e[win.slices], win.electrons, self.colour)
+            img[win.slices] = expose_rgb(electrons, self.sensor, rng)
+        return demosaic(img, self.colour)
+
+    def frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
+        """A noisy digital frame as stored (:meth:`sensor_frame`, then a colour camera's JPEG
+        round trip when it stores JPEG)."""
+        img = self.sensor_frame(trace, rng)
+        return img if self.colour is None else stored(img, self.colour)
 
 
 class _BackgroundShading:

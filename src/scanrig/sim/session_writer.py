@@ -6,6 +6,7 @@ Written files::
     scan/<camera>/<frame>.png             one laser frame per beam pose
     scan/<camera>/dark.png                the laser-off frame
     target.toml, calibration/<camera>/<shot>.png   (with_calibration)
+                                          (colour cameras: RGB, .jpg when they store JPEG)
     truth/rig.toml                        the true cameras (same format as a calibration result)
     truth/meshes/<object>.ply             object meshes in world coordinates, metres
     truth/frames.csv                      frame, kind, x, y, z: primary and secondary hits
@@ -31,7 +32,7 @@ from scanrig.geometry import Rig
 from scanrig.io.atomic import write_bytes_atomic, write_text_atomic
 from scanrig.io.ply import write_ply
 from scanrig.io.rig_file import save_rig
-from scanrig.io.session import write_image
+from scanrig.sim.colour import write_frame
 from scanrig.sim.laser import BeamPose, raster_poses, trace_laser
 from scanrig.sim.library import load_scene, scene_path
 from scanrig.sim.parallel import run_indexed
@@ -128,7 +129,7 @@ def simulate_session(
         view.__dict__["background_e"] = background
         view.noise  # noqa: B018 - draw the noise bank now, before forking
     for view in views:
-        write_image(out / "scan" / view.camera.name / "dark.png", view.frame(None, dark_rng))
+        write_frame(out / "scan" / view.camera.name / "dark", view.sensor_frame(None, dark_rng), view.colour)
 
     poses = raster_poses(scene.laser, scene.center_m, scene.radius_m, n_frames, mode)
     stems = [f"{i:05d}" for i in range(len(poses))]
@@ -162,7 +163,8 @@ def _render_frames(out, scene, views, poses, stems, frame_rngs, workers, progres
     def render_one(i: int):
         trace = trace_laser(poses[i], scene.laser, scene)
         for view in views:
-            write_image(out / "scan" / view.camera.name / f"{stems[i]}.png", view.frame(trace, frame_rngs[i]))
+            write_frame(out / "scan" / view.camera.name / stems[i], view.sensor_frame(trace, frame_rngs[i]),
+                        view.colour)
         return trace.truth_kind, trace.truth_points
 
     return run_indexed(render_one, len(poses), workers, lambda done: progress("frames", done, len(poses)))
