@@ -18,15 +18,23 @@ def command(
     calibration: Annotated[bool, typer.Option(help="Also render calibration target shots.")] = True,
     shots: Annotated[int, typer.Option(min=1, help="Calibration target poses.")] = 12,
     target: Annotated[str, typer.Option(help="Calibration target: cube, chessboard or charuco.")] = "cube",
+    light_plane_shots: Annotated[int, typer.Option(min=0, help="Poses of a planar target across a fixed line laser beside the first camera (light_plane/ + calibration/ twins) for calibrate --light-plane.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Rendering processes.")] = 2,
+    rig: Annotated[str, typer.Option(
+        help="arc: --cameras cameras on an arc, the laser swept by a pan-tilt head. turntable: one camera and a "
+             "fixed line laser, the object turning by 360/--frames degrees per frame (use --scene turntable; "
+             "writes scan/object_poses.csv; --cameras and --mode do not apply).")] = "arc",
 ):
     """Simulate a multi-camera laser session (images + truth/) from a virtual rig.
 
     Writes scan/<camera>/<frame>.png, calibration/<camera>/<shot>.png, target.toml, session.toml
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
-    identical files.
+    identical files. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
+    fixed laser sheet, scan/object_poses.csv, truth/light_plane.toml and meshes in the object frame.
 
     Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 6 --seed 1
+
+    Example: scanrig simulate tt_session --rig turntable --scene turntable --frames 90 --seed 1
     """
     import shlex
     import sys
@@ -39,6 +47,8 @@ def command(
 
     if mode not in ("spot", "stripe"):
         raise InputError(f"--mode must be 'spot' or 'stripe', got {mode!r}")
+    if rig not in ("arc", "turntable"):
+        raise InputError(f"--rig must be 'arc' or 'turntable', got {rig!r}")
     provenance = {"seed": seed, "command": shlex.join(["scanrig", *sys.argv[1:]])}
     with Progress(TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeRemainingColumn()) as bar:
@@ -49,7 +59,16 @@ def command(
                 tasks[stage] = bar.add_task(stage, total=total)
             bar.update(tasks[stage], completed=done)
 
-        simulate_session(out, scene=scene, n_cameras=cameras, mode=mode, n_frames=frames,
-                         rng=np.random.default_rng(seed), with_calibration=calibration, n_shots=shots,
-                         target_kind=target, workers=workers, progress=progress, provenance=provenance)
+        if rig == "turntable":
+            from scanrig.sim.turntable import simulate_turntable_session
+
+            simulate_turntable_session(out, scene=scene, n_frames=frames, rng=np.random.default_rng(seed),
+                                       with_calibration=calibration, n_shots=shots, target_kind=target,
+                                       workers=workers, progress=progress, provenance=provenance)
+            cameras = 1
+        else:
+            simulate_session(out, scene=scene, n_cameras=cameras, mode=mode, n_frames=frames,
+                             rng=np.random.default_rng(seed), with_calibration=calibration, n_shots=shots,
+                             target_kind=target, light_plane_shots=light_plane_shots, workers=workers,
+                         progress=progress, provenance=provenance)
     typer.echo(f"wrote {out} ({frames} frames, {cameras} cameras, seed {seed})")
