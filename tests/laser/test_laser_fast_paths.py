@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+import scanrig
 from scanrig.laser import peaks
 from scanrig.laser.fit import (
     _cholesky_solve,
@@ -102,28 +103,28 @@ def test_block_maxima_and_patches_match_the_plain_computation(shape, dtype):
         np.testing.assert_array_equal(patch[:, :, k], sig[np.ix_(rows, cols)].astype(np.float32))
 
 
-def _reference_direction_map(excess, tile_blocks=9):
-    e = np.maximum(excess, 0.0).astype(np.float32)
-    across_cols = np.zeros_like(e)
-    across_rows = np.zeros_like(e)
-    across_cols[:, :-1] = np.square(np.diff(e, axis=1))
-    across_rows[:-1, :] = np.square(np.diff(e, axis=0))
-    sxx = cv2.boxFilter(across_cols, -1, (tile_blocks, tile_blocks), normalize=False)
-    syy = cv2.boxFilter(across_rows, -1, (tile_blocks, tile_blocks), normalize=False)
-    return np.where(sxx + syy > 0, sxx >= syy, bool(across_cols.sum() >= across_rows.sum()))
-
-
-def test_cropped_direction_map_matches_the_whole_frame_where_it_matters():
+def test_a_curved_stripe_is_crossed_steeply_everywhere():
+    """On a ring the scan direction follows the stripe: rows where it is steep, columns where it
+    is flat, so every line crosses it at 30° or more from lengthwise."""
     rng = np.random.default_rng(15)
     yy, xx = np.mgrid[0:600, 0:800]
     r = np.hypot(xx - 380, yy - 290)
     img = np.clip(np.rint(10 + 180 * np.exp(-0.5 * ((r - 200) / 1.5) ** 2) + rng.normal(0, 2, r.shape)), 0, 255)
-    excess = peaks.prescan(prepare_image(img.astype(np.uint8)))
-    relevant = cv2.dilate((excess > 0).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    assert relevant.sum() > 500
-    cropped, whole = peaks.scan_direction_map(excess), _reference_direction_map(excess)
-    np.testing.assert_array_equal(cropped[relevant], whole[relevant])
-    assert peaks.scan_direction_map(np.full((10, 12), -1.0, np.float32)).all()
+    t = scanrig.detect_stripe(img.astype(np.uint8))
+    u, v, line = (t[k].to_numpy() for k in ("u", "v", "line"))
+    radius = np.hypot(u - 380, v - 290)
+    on_ring = np.abs(radius - 200) < 1.0
+    normal = np.stack([u - 380, v - 290], axis=1) / radius[:, None]
+    along_line = np.where(v == line, np.abs(normal[:, 0]), np.abs(normal[:, 1]))  # scan line · normal
+    # a ring of radius 200 px crossed where steep by rows and where flat by columns: 4 √2 · 200
+    # lines cross it at 45° or more, 1131 points
+    assert on_ring.sum() >= 1100 and on_ring.mean() > 0.99
+    assert np.all(along_line[on_ring] >= np.sin(np.deg2rad(30)))
+
+
+def test_direction_map_without_candidates_scans_rows():
+    empty = np.zeros((10, 12), np.float32)
+    assert peaks.direction_map(empty, empty).all()
 
 
 @pytest.mark.parametrize("along", ["2d", "rows", "columns"])

@@ -15,11 +15,17 @@ mostly dark pixels underestimates by far at a bright pixel (a glint of room ligh
 metal, the edge of a lit part). A cell-based threshold there let the dark frame's own noise,
 the same in every frame, pass as a faint spot at the same pixel frame after frame.
 
-Pixels whose laser channel sits at the saturation level are flagged; the fit excludes them (the
-unclipped tails still fix the centre) and candidate finding sees them at full scale, so a white
-saturated core with coloured fringes is one trace, not two fringes. After dark subtraction "full
-scale" is the clip level minus the dark's signal (what the laser added at least), and pixels
-clipped in the dark frame too read 0: there the laser cannot be seen.
+Clipping. Pixels whose laser channel is within ``CLIP_MARGIN`` of the saturation level are flagged
+(JPEG and demosaicing spread a clipped plateau a few DN below the clip, so an exact test misses
+most of it); the fit excludes them (the unclipped flanks, and in a colour frame the other
+channels' crosstalk, still fix the centre: :mod:`scanrig.laser.colour_fit`) and candidate finding
+sees them at full scale, so a white saturated core with coloured fringes is one trace, not two
+fringes. After dark subtraction "full scale" is the clip level minus the dark's signal (what the
+laser added at least). A pixel clipped in the dark frame too carries no difference in the laser
+channel: it is unknown, not zero. In a colour frame the other channels tell whether the laser is
+there (a red beam changes green and blue by its crosstalk; a glint of room light, clipped in both
+frames, changes nothing), so such a pixel reads full scale where they changed by more than
+``_CROSSTALK_SIGMAS`` of their noise, else 0.
 """
 
 from __future__ import annotations
@@ -57,6 +63,11 @@ _PTC_MAX_SAMPLES = 12_000
 _PTC_MIN_SAMPLES = 50
 #: ... whose slope is raised by this many of its standard errors (see :func:`fit_noise_model`).
 _PTC_SLOPE_MARGIN = 2.0
+#: A pixel within this fraction of the saturation level counts as clipped.
+CLIP_MARGIN = 0.03
+#: Change of the non-laser channels, in noise σ, that shows the laser in a pixel clipped in both
+#: the frame and the dark frame.
+_CROSSTALK_SIGMAS = 6.0
 #: Squared weights of the channels in the signal of a colour frame: red minus the mean of the
 #: others, and OpenCV's RGB -> grey luma.
 _CHANNEL_WEIGHTS2 = {"red": (1.0, 0.25, 0.25), "green": (0.25, 1.0, 0.25), "blue": (0.25, 0.25, 1.0),
@@ -106,6 +117,26 @@ class NoiseModel:
 
 
 @dataclass(frozen=True)
+class ColourFrames:
+    """The raw colour frame (and dark frame) inside the region of interest.
+
+    Attributes
+    ----------
+    image, dark : (H, W, 3) uint8 or uint16 arrays
+        RGB; ``dark`` is None without a laser-off frame.
+    laser_channel : int
+        Index of the laser's colour (0 red, 1 green, 2 blue).
+    clip_level : float
+        DN from which a pixel counts as clipped (the saturation level less ``CLIP_MARGIN``).
+    """
+
+    image: np.ndarray
+    dark: np.ndarray | None
+    laser_channel: int
+    clip_level: float
+
+
+@dataclass(frozen=True)
 class LaserImage:
     """The laser signal of one frame, ready for the detectors.
 
@@ -129,6 +160,9 @@ class LaserImage:
     noise_model : NoiseModel or None
         Per-pixel noise, when a dark frame was subtracted and the noise was not given; then
         :meth:`noise_at` uses it instead of ``noise``.
+    colour : ColourFrames or None
+        The raw colour frames, for the fit of clipped traces from all channels
+        (:mod:`scanrig.laser.colour_fit`); None for a grey frame or a grey laser.
     """
 
     signal: np.ndarray
@@ -138,6 +172,7 @@ class LaserImage:
     noise: np.ndarray
     background: np.ndarray
     noise_model: NoiseModel | None = None
+    colour: ColourFrames | None = None
 
     def background_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Background level, DN, at integer signal coordinates ``u``, ``v`` (same shape)."""
@@ -211,10 +246,11 @@ def prepare_image(
         raise InputError(f"saturation_level must be in (0, {full_scale:g}] for {image.dtype} images, "
                          f"got {saturation_level}")
 
+    clip_level = saturation_level - CLIP_MARGIN * full_scale
     channel = _laser_channel(image, color)
     saturated = None
-    if channel.max() >= saturation_level:
-        saturated = channel >= saturation_level
+    if channel.max() >= clip_level:
+        saturated = _close_gaps(channel >= clip_level)
     signal = _signal(image, color)
     if dark is not None:
         dark_signal = _signal(dark, color).astype(np.float32)
@@ -228,10 +264,12 @@ def prepare_image(
                              else saturation_level - np.maximum(dark_signal[saturated], 0.0))
         if dark is not None:
             dark_channel = _laser_channel(dark, color)
-            if dark_channel.max() >= saturation_level:
-                # clipped without the laser: nothing can be measured there (a saturated glint)
-                dark_saturated = dark_channel >= saturation_level
-                signal[dark_saturated] = 0.0
+            if dark_channel.max() >= clip_level:
+                dark_saturated = saturated & (dark_channel >= clip_level)
+                signal[dark_saturated] = 0.0  # until the other channels say otherwise (below)
+    colour = None
+    if image.ndim == 3 and color != "grey":
+        colour = ColourFrames(image, dark, _CHANNEL[color], float(clip_level))
     model = None
     if noise_sigma is None:
         rows, high_pass = _high_pass_bands(signal)
@@ -246,7 +284,29 @@ def prepare_image(
         raise InputError(f"noise_sigma must be a positive number of DN, got {noise_sigma}")
     else:
         noise = np.full(_cells_shape(signal.shape, NOISE_CELL), noise_sigma, np.float32)
-    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background_cells(signal), model)
+    if dark_saturated is not None and colour is not None and dark_saturated.any():
+        seen = _crosstalk_changed(colour, dark_saturated, _CROSSTALK_SIGMAS * noise_sigma)
+        signal[dark_saturated] = np.where(seen, np.float32(saturation_level), np.float32(0.0))
+    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background_cells(signal), model,
+                      colour)
+
+
+def _close_gaps(clipped: np.ndarray) -> np.ndarray:
+    """The clipped mask with one-pixel gaps closed (3 × 3 closing): JPEG ringing drops single
+    pixels of a clipped plateau just below the clip level, and the run must stay one run."""
+    import cv2
+
+    kernel = np.ones((3, 3), np.uint8)
+    return cv2.morphologyEx(clipped.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool)
+
+
+def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float) -> np.ndarray:
+    """Whether the non-laser channels differ between frame and dark frame by more than
+    ``threshold`` DN (sum of absolute changes) at the pixels ``where``: ``(n,)`` bool."""
+    others = [c for c in range(3) if c != colour.laser_channel]
+    on = colour.image[where][:, others].astype(np.float32)
+    off = colour.dark[where][:, others].astype(np.float32)
+    return np.abs(on - off).sum(axis=1) > threshold
 
 
 def check_frame(image, name: str) -> None:

@@ -11,6 +11,11 @@
 3. *Detection test*: the box sum above 9 × background must exceed ``k_detect`` times its noise
    (3σ). At ``k_detect = 6`` pure noise gives about 1e-9 false candidates per pixel.
 4. *Suppression*: of candidates closer than ``min_separation_px``, the stronger one stays.
+5. *Prominence* (stripes): a laser profile rises and falls within a few widths, a step in
+   reflectance (a printed dot, a square, a board's edge, wood grain) has one flank only. The box
+   sum at a candidate is compared with the lowest box sum on *each* side within reach, and the
+   higher of the two lows is its base: :func:`line_prominence`. A step has no base on its bright
+   side and gets no prominence.
 """
 
 from __future__ import annotations
@@ -91,19 +96,19 @@ def _upsample(cells: np.ndarray, factor: int, shape) -> np.ndarray:
     return np.repeat(np.repeat(cells, factor, 1), factor, 0)[: shape[0], : shape[1]]
 
 
-def scan_direction_map(excess: np.ndarray, tile_blocks: int = 9) -> np.ndarray:
+def direction_map(rows_weight: np.ndarray, columns_weight: np.ndarray, tile_blocks: int = 9) -> np.ndarray:
     """Per 4 × 4 block, whether the stripe there is best crossed by rows (True) or columns (False).
 
-    A coarse structure tensor of the pre-scan: squared differences of the positive excess across
-    columns and across rows, summed over ``tile_blocks`` × ``tile_blocks`` blocks. Where the stripe
-    runs mostly along v the differences across columns dominate and rows cross it; a curved
-    stripe thus gets rows where it is steep and columns where it is flat. Blocks without structure
-    take the frame's overall direction.
+    A stripe crossed at a steep angle has prominent maxima along the crossing lines; crossed
+    lengthwise it has none (its profile along the line is flat). The summed prominence of the
+    candidates found along rows and along columns, each summed over ``tile_blocks`` ×
+    ``tile_blocks`` blocks, decides: a curved stripe gets rows where it is steep and columns where
+    it is flat. Blocks without candidates near them take the frame's overall direction.
 
     Parameters
     ----------
-    excess : (hb, wb) float32 array
-        Result of :func:`prescan`.
+    rows_weight, columns_weight : (hb, wb) float32 arrays
+        Summed prominence of the candidates of each block, found along rows and along columns.
     tile_blocks : int
         Side of the summing window, blocks (odd).
 
@@ -113,28 +118,11 @@ def scan_direction_map(excess: np.ndarray, tile_blocks: int = 9) -> np.ndarray:
     """
     import cv2
 
-    positive = excess > 0
-    rows = np.flatnonzero(positive.any(axis=1))
-    if rows.size == 0:
-        return np.ones(excess.shape, bool)  # no structure anywhere: the default, rows
-    cols = np.flatnonzero(positive.any(axis=0))
-    # Only blocks near positive ones have structure: work on their bounding box, with a margin of
-    # zeros wider than the summing window so that the box sums inside are those of the whole map.
-    margin = tile_blocks // 2 + 2
-    r0, r1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, excess.shape[0])
-    c0, c1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, excess.shape[1])
-    e = np.maximum(excess[r0:r1, c0:c1], 0.0).astype(np.float32)
-    across_cols = np.zeros_like(e)
-    across_rows = np.zeros_like(e)
-    across_cols[:, :-1] = np.square(np.diff(e, axis=1))
-    across_rows[:-1, :] = np.square(np.diff(e, axis=0))
     size = (tile_blocks, tile_blocks)
-    sxx = cv2.boxFilter(across_cols, -1, size, normalize=False)
-    syy = cv2.boxFilter(across_rows, -1, size, normalize=False)
-    overall = bool(across_cols.sum() >= across_rows.sum())
-    out = np.full(excess.shape, overall)
-    out[r0:r1, c0:c1] = np.where(sxx + syy > 0, sxx >= syy, overall)
-    return out
+    along_rows = cv2.boxFilter(rows_weight, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    along_cols = cv2.boxFilter(columns_weight, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    overall = bool(rows_weight.sum() >= columns_weight.sum())
+    return np.where(along_rows + along_cols > 0, along_rows >= along_cols, overall)
 
 
 def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None, k_seed: float = 4.5,
@@ -276,6 +264,40 @@ def suppress_on_lines(line: np.ndarray, pos: np.ndarray, score: np.ndarray, radi
     keep[:-1] &= ~(close & right_wins)
     keep[1:] &= ~(close & ~right_wins)
     return keep
+
+
+def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """Prominence of candidates along their scan lines (axis 1 of ``signal``), DN of the 3 × 3 box sum.
+
+    The box sum at ``pos`` minus the higher of the two lowest box sums on its left and on its
+    right within ``reach`` pixels: both flanks must fall for a candidate to be prominent.
+    Positions beyond the frame repeat its edge.
+
+    Parameters
+    ----------
+    signal : (n_lines, n_pos) array, DN
+    line, pos : (n,) int arrays
+    reach : (n,) int array
+        Pixels searched on each side, at least 1.
+
+    Returns
+    -------
+    (n,) float32 array
+    """
+    if line.size == 0:
+        return np.zeros(0, np.float32)
+    n_lines, n_pos = signal.shape
+    far = int(reach.max())
+    offs = np.arange(-far - 1, far + 2)
+    cols = np.clip(pos[:, None] + offs, 0, n_pos - 1)  # (n, 2 far + 3)
+    rows = np.clip(line[:, None] + np.arange(-1, 2), 0, n_lines - 1)  # (n, 3)
+    col3 = signal[rows[:, :, None], cols[:, None, :]].astype(np.float32).sum(axis=1)
+    box = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]  # (n, 2 far + 1): offsets -far .. far
+    beyond = np.abs(offs[1:-1])[None, :] > reach[:, None]
+    box_masked = np.where(beyond, np.float32(np.inf), box)
+    left = box_masked[:, :far].min(axis=1)
+    right = box_masked[:, far + 1 :].min(axis=1)
+    return box[:, far] - np.maximum(left, right)
 
 
 def _empty() -> Candidates:

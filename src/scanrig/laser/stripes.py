@@ -15,12 +15,15 @@ line.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
+from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.image import prepare_image
-from scanrig.laser.peaks import BLOCK, find_candidates, prescan, scan_direction_map, suppress_on_lines
+from scanrig.laser.peaks import BLOCK, direction_map, find_candidates, line_prominence, prescan, suppress_on_lines
 from scanrig.laser.traces import empty_table, make_table
 
 DIRECTIONS = ("auto", "rows", "columns")
@@ -98,39 +101,106 @@ def detect_stripe(
         raise InputError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
     li = prepare_image(image, color, dark, roi, saturation_level, noise_sigma)
     excess = prescan(li)
+    alongs = ("rows", "columns") if direction == "auto" else (direction,)
+    found = {along: _prominent(li, along, excess, k_detect, min_separation_px, max_width_px) for along in alongs}
     if direction == "auto":
-        by_rows = scan_direction_map(excess)
-    else:
-        by_rows = np.full(excess.shape, direction == "rows")
-    parts = [_detect_along(li, along, blocks, np.where(blocks, excess, -1.0), k_detect, min_separation_px,
-                           max_width_px, max_per_line)
-             for along, blocks in (("rows", by_rows), ("columns", ~by_rows)) if blocks.any()]
+        by_rows = direction_map(found["rows"].block_weights(True, excess.shape),
+                                found["columns"].block_weights(False, excess.shape))
+        found = {along: c.take(by_rows[c.block_index(along == "rows")] == (along == "rows"))
+                 for along, c in found.items()}
+    parts = [_fit_along(li, along, c.take(_strongest_per_line(c.line, c.prominence, max_per_line)), max_width_px)
+             for along, c in found.items()]
     parts = [p for p in parts if p is not None]
     if not parts:
         return empty_table()
     return make_table("stripe", {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, camera, frame)
 
 
-def _detect_along(li, along, blocks, excess, k_detect, min_separation_px, max_width_px,
-                  max_per_line) -> dict[str, np.ndarray] | None:
-    """Candidates scanned along rows or columns, kept where ``blocks`` (4 × 4 pixel blocks) says so;
-    None when there are none."""
+@dataclass(frozen=True)
+class _LineCandidates:
+    """Prominent candidates of one scan direction, in signal coordinates, sorted by (line, pos).
+
+    Attributes
+    ----------
+    line, pos : (n,) int arrays
+        Scan line and position along it (the middle of the clipped run for a clipped seed).
+    run_half : (n,) int array
+        Half-length of the clipped run the candidate sits on, pixels (0 if not clipped).
+    prominence : (n,) float array
+        :func:`~scanrig.laser.peaks.line_prominence` in noise σ of the box sum.
+    noise : (n,) float array
+        Noise σ at the candidate, DN.
+    """
+
+    line: np.ndarray
+    pos: np.ndarray
+    run_half: np.ndarray
+    prominence: np.ndarray
+    noise: np.ndarray
+
+    def take(self, index) -> _LineCandidates:
+        return _LineCandidates(*(a[index] for a in (self.line, self.pos, self.run_half, self.prominence, self.noise)))
+
+    def block_index(self, rows: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``(block row, block column)`` of each candidate (4 × 4 pixel blocks)."""
+        u, v = (self.pos, self.line) if rows else (self.line, self.pos)
+        return v // BLOCK, u // BLOCK
+
+    def block_weights(self, rows: bool, shape) -> np.ndarray:
+        """Evidence per block that its scan lines cross a stripe, ``shape`` (the pre-scan's), float32:
+        the summed prominence, each divided by the length of its clipped run (a clipped stripe
+        followed lengthwise is a long plateau that still falls at both ends)."""
+        out = np.zeros(shape, np.float32)
+        np.add.at(out, self.block_index(rows), (self.prominence / (1 + 2 * self.run_half)).astype(np.float32))
+        return out
+
+
+def _prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> _LineCandidates:
+    """Local maxima along rows or columns that pass the detection test, rise above both flanks by
+    ``k_detect`` noise σ of the box sum, and are not suppressed by a stronger neighbour."""
     cand = find_candidates(li, along, excess, k_detect=k_detect)
-    cand = cand.take(blocks[cand.v // BLOCK, cand.u // BLOCK])
     rows = along == "rows"
     line, pos = (cand.v, cand.u) if rows else (cand.u, cand.v)
     order = np.lexsort((pos, line))
     line, pos, score = line[order], pos[order], cand.score[order]
     keep = suppress_on_lines(line, pos, score, min_separation_px)
-    keep = _strongest_per_line(line, score, keep, max_per_line)
     line, pos = line[keep], pos[keep]
-    if line.size == 0:
+    signal = li.signal if rows else li.signal.T
+    run_half = np.zeros(line.size, np.int64)
+    if li.saturated is not None:
+        pos, run_half = _centre_of_saturated_run(li.saturated if rows else li.saturated.T, line, pos,
+                                                 _MAX_RUN_HALF_PX)
+    noise = li.noise_at(*((pos, line) if rows else (line, pos))).astype(np.float64)
+    reach = int(np.ceil(3.0 * max_width_px)) + 1 + run_half
+    prominence = line_prominence(signal, line, pos, reach) / (3.0 * noise)
+    return _LineCandidates(line, pos, run_half, prominence, noise).take(prominence >= k_detect)
+
+
+def _fit_along(li, along, cand: _LineCandidates, max_width_px) -> dict[str, np.ndarray] | None:
+    """Sub-pixel centres of the candidates of one scan direction (full-frame columns of the traces
+    table, ranked by prominence); None when there are none."""
+    if cand.line.size == 0:
         return None
+    rows = along == "rows"
     signal = li.signal if rows else li.signal.T
     saturated = None if li.saturated is None else (li.saturated if rows else li.saturated.T)
-    uv = (pos, line) if rows else (line, pos)
-    cols = _fit_lines(signal, saturated, line, pos, li.background_at(*uv), li.noise_at(*uv).astype(np.float64),
-                      max_width_px)
+    clipped = cand.run_half > 0 if li.colour is not None else np.zeros(cand.line.size, bool)
+    parts = []
+    if not clipped.all():
+        plain = cand.take(~clipped)
+        uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
+        parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
+                                max_width_px, plain.prominence))
+    if clipped.any():
+        wide = cand.take(clipped)
+        fit = fit_clipped(li.colour, rows, wide.line, wide.pos,
+                          int(np.ceil(3.0 * max_width_px)) + int(wide.run_half.max()),
+                          MAX_SHIFT_PX + wide.run_half / 2.0)
+        index = fit.pop("index")
+        fit.update(line=wide.line[index], sigma_px=np.sqrt(fit["var"]), saturated=np.ones(index.size, bool),
+                   prominence=wide.prominence[index])
+        parts.append(fit)
+    cols = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     centre = cols.pop("centre")
     var = cols.pop("var")
     zero = np.zeros_like(var)
@@ -141,19 +211,17 @@ def _detect_along(li, along, blocks, excess, k_detect, min_separation_px, max_wi
         cols.update(u=cols["line"] + float(li.origin[0]), v=centre + li.origin[1], cov_uu=zero, cov_vv=var)
         cols["line"] = cols["line"] + li.origin[0]
     cols["cov_uv"] = zero
-    cols["rank"] = _rank_on_lines(cols["line"], cols["peak"])
+    cols["rank"] = _rank_on_lines(cols["line"], cols.pop("prominence"))
     cols["line"] = cols["line"].astype(np.int32)
     return cols
 
 
-def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px) -> dict[str, np.ndarray]:
+def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, prominence) -> dict[str, np.ndarray]:
     """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped.
     The windows are stacked candidate-minor, ``(W, n)`` (see :mod:`scanrig.laser.fit`)."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
     n_pos = signal.shape[1]
-    if saturated is not None:
-        pos = _centre_of_saturated_run(saturated, line, pos, offs)
     idx = offs[:, None] + pos
     inside = (idx >= 0) & (idx < n_pos)
     np.clip(idx, 0, n_pos - 1, out=idx)
@@ -173,18 +241,26 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px) ->
         "line": line, "centre": pos + p[:, 1], "var": var, "sigma_px": np.sqrt(np.abs(var)),
         "peak": p[:, 0], "width_px": p[:, 2], "snr": p[:, 0] / noise,
         "saturated": np.zeros(line.size, bool) if sat is None else sat[half - 1 : half + 2].any(axis=0),
+        "prominence": prominence,
     }
     return {k: a[ok] for k, a in out.items()}
 
 
-def _centre_of_saturated_run(saturated, line, pos, offs) -> np.ndarray:
-    """Move seeds that sit on a clipped plateau (found at its end) to the plateau's middle."""
+#: Longest half clipped run followed from a seed, pixels (an over-exposed stripe with its halo
+#: clips over a few tens of pixels at most; a clipped glint or window beyond is no stripe).
+_MAX_RUN_HALF_PX = 32
+
+
+def _centre_of_saturated_run(saturated, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
+    """Seeds that sit on a clipped plateau (found at its end) moved to the plateau's middle, and the
+    plateau's half-length (0 for seeds that are not clipped), followed at most ``reach`` pixels."""
+    offs = np.arange(-reach, reach + 1)
     idx = np.clip(pos[:, None] + offs, 0, saturated.shape[1] - 1)
     sat = saturated[line[:, None], idx]
-    half = offs.size // 2
-    right = np.cumprod(sat[:, half:], axis=1).sum(axis=1)
-    left = np.cumprod(sat[:, half::-1], axis=1).sum(axis=1)
-    return np.where(sat[:, half], pos + (right - left) // 2, pos)
+    right = np.cumprod(sat[:, reach:], axis=1).sum(axis=1)
+    left = np.cumprod(sat[:, reach::-1], axis=1).sum(axis=1)
+    clipped = sat[:, reach]
+    return np.where(clipped, pos + (right - left) // 2, pos), np.where(clipped, (right + left) // 2, 0)
 
 
 def _nearest_on_line(line, pos, offs) -> np.ndarray:
@@ -251,12 +327,9 @@ def _clipped_start(y, saturated, half, max_width_px) -> np.ndarray:
                      np.nan_to_num(bg[pick, best])], axis=1)
 
 
-def _strongest_per_line(line, score, keep, max_per_line) -> np.ndarray:
-    """``keep`` restricted to the ``max_per_line`` highest scores of each line."""
-    idx = np.flatnonzero(keep)
-    out = keep.copy()
-    out[idx[_rank_on_lines(line[idx], score[idx]) >= max_per_line]] = False
-    return out
+def _strongest_per_line(line, score, max_per_line) -> np.ndarray:
+    """Keep-mask: the ``max_per_line`` highest scores of each line."""
+    return _rank_on_lines(line, score) < max_per_line
 
 
 def _rank_on_lines(line, peak) -> np.ndarray:

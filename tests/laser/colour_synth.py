@@ -1,0 +1,68 @@
+"""Over-exposed red stripes on printed white paper, as a colour camera records them, with exact truth.
+
+The scene is white paper with printed black dots; a red line laser, exposed several times past full
+scale, crosses it slightly tilted. Pixel integration of the beam uses ``scipy.special.ndtr``
+directly (independent of the estimator's code, see :mod:`tests.laser.synth`); the colour camera
+(crosstalk, sub-surface halo, clipping, noise, Bayer demosaicing, JPEG 4:2:0) is the simulator's
+:func:`scanrig.sim.colour.colour_frame`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scanrig.sim.colour import ColourResponse, colour_frame
+from scanrig.sim.sensor import Sensor
+from tests.laser.synth import integrated
+
+#: Paper and ink albedo, and the paper's level in the red channel as a fraction of full scale
+#: (real paper beside a red stripe: (164, 166, 153) of 255).
+PAPER_ALBEDO, INK_ALBEDO, PAPER_LEVEL = 0.7, 0.05, 0.64
+#: Beam width (1-σ along a row, px) and the stripe's slope (px of u per row).
+BEAM_SIGMA_PX, SLOPE = 1.2, 0.15
+#: The colour camera of the held-out set: crosstalk, a 3-px halo carrying 30 % of the light,
+#: Bayer demosaicing and JPEG at quality 90.
+RESPONSE = ColourResponse(laser_rgb=(1.0, 0.07, 0.05), ambient_rgb=(1.0, 1.0, 0.92), halo_fraction=0.3,
+                          halo_radius_px=3.0, bayer=True, jpeg_quality=90)
+
+
+def printed_dots(shape, rng: np.random.Generator, n_dots: int = 40) -> np.ndarray:
+    """Albedo ``(H, W)`` of white paper with ``n_dots`` printed black dots of radius 6-25 px."""
+    h, w = shape
+    albedo = np.full(shape, PAPER_ALBEDO)
+    vv, uu = np.mgrid[0:h, 0:w]
+    for cv, cu, r in zip(rng.uniform(0, h, n_dots), rng.uniform(0, w, n_dots), rng.uniform(6, 25, n_dots)):
+        albedo[(vv - cv) ** 2 + (uu - cu) ** 2 < r * r] = INK_ALBEDO
+    return albedo
+
+
+def stripe_frames(rng: np.random.Generator, shape=(480, 640), overexposure: float = 8.0,
+                  response: ColourResponse = RESPONSE):
+    """A laser-on frame, its laser-off frame and the true centre of the stripe on every row.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Dots, the stripe's position and the noise.
+    shape : (H, W)
+    overexposure : float
+        Peak of the beam on paper in the laser channel, in units of full scale.
+    response : ColourResponse
+
+    Returns
+    -------
+    on, off : (H, W, 3) uint8 arrays
+    centre_u : (H,) float array
+        True centre of the beam on each row, px.
+    """
+    sensor = Sensor()
+    full_e = sensor.full_well_e
+    albedo = printed_dots(shape, rng)
+    h, w = shape
+    centre_u = rng.uniform(0.35, 0.45) * w + SLOPE * np.arange(h)
+    beam = integrated(np.arange(w, dtype=float)[None, :], centre_u[:, None], BEAM_SIGMA_PX)
+    laser_e = overexposure * full_e * beam * albedo / PAPER_ALBEDO
+    scene_e = PAPER_LEVEL * full_e * albedo / PAPER_ALBEDO
+    on = colour_frame(scene_e, laser_e, sensor, response, rng)
+    off = colour_frame(scene_e, np.zeros(shape), sensor, response, rng)
+    return on, off, centre_u

@@ -1,0 +1,114 @@
+"""Over-exposed red stripes seen by a colour camera: clipped red, crosstalk, halo, printed dots, JPEG.
+
+Tolerances: the acceptance figures of the detector on this held-out rendering (rank 0 within
+0.5 px of the true beam centre on 95 % of the rows, median error 0.15 px, normalised error spread
+0.7-1.4); two seeds each.
+"""
+
+import numpy as np
+import pytest
+
+import scanrig
+
+from .colour_synth import stripe_frames
+
+#: Rows this close to the frame's top and bottom are left out (the 3 × 3 box sum needs both rows).
+EDGE_ROWS = 8
+
+
+def _rank0_errors(seed: int, use_dark: bool):
+    """Per row: error of the rank-0 row-scanned centre (px, NaN where none), its σ and whether it was clipped."""
+    on, off, centre_u = stripe_frames(np.random.default_rng(seed))
+    t = scanrig.detect_stripe(on, color="red", dark=off if use_dark else None)
+    u, v, line, rank, sigma, clipped = (t[k].to_numpy() for k in ("u", "v", "line", "rank", "sigma_px", "saturated"))
+    best = (rank == 0) & (v == line)
+    h = on.shape[0]
+    err, sig, sat = np.full(h, np.nan), np.full(h, np.nan), np.zeros(h, bool)
+    err[line[best]] = u[best] - centre_u[line[best]]
+    sig[line[best]], sat[line[best]] = sigma[best], clipped[best]
+    rows = slice(EDGE_ROWS, h - EDGE_ROWS)
+    return err[rows], sig[rows], sat[rows]
+
+
+def _spread(z: np.ndarray) -> float:
+    """Robust standard deviation (MAD) of normalised errors."""
+    return float(1.4826 * np.median(np.abs(z)))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rank0_is_the_beam_centre_with_a_laser_off_frame(seed):
+    err, _, sat = _rank0_errors(seed, use_dark=True)
+    assert np.mean(np.abs(err) < 0.5) >= 0.95
+    assert np.nanmedian(np.abs(err)) <= 0.15
+    assert sat.mean() > 0.8  # the held-out set is over-exposed: most rows clip in red
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_without_a_laser_off_frame_the_centre_is_as_accurate(seed):
+    err, _, _ = _rank0_errors(seed, use_dark=False)
+    assert np.nanmedian(np.abs(err)) <= 0.15
+    assert np.mean(np.abs(err) < 0.5) >= 0.85  # measured 0.88-0.91; the acceptance's 0.95 below
+
+
+@pytest.mark.xfail(strict=True, reason="without a laser-off frame, a stripe running along a printed "
+                   "dot's edge is weighted by the ink's reflectance: 9-12 % of rows are 0.5-4 px off")
+@pytest.mark.parametrize("seed", [0, 1])
+def test_without_a_laser_off_frame_rank0_is_within_half_a_pixel_on_95_percent(seed):
+    err, _, _ = _rank0_errors(seed, use_dark=False)
+    assert np.mean(np.abs(err) < 0.5) >= 0.95
+
+
+@pytest.mark.parametrize("use_dark", [False, True])
+def test_sigma_of_clipped_centres_is_honest(use_dark):
+    z = []
+    for seed in (0, 1):
+        err, sig, sat = _rank0_errors(seed, use_dark)
+        good = sat & (np.abs(err) < 0.5)
+        z.append(err[good] / sig[good])
+    z = np.concatenate(z)
+    assert z.size > 600
+    assert 0.7 <= _spread(z) <= 1.4
+
+
+@pytest.mark.xfail(strict=True, reason="the halo makes unclipped profiles non-Gaussian; the misfit "
+                   "inflation of sigma then overstates it (spread 0.3-0.7)")
+def test_sigma_of_unclipped_centres_is_honest():
+    z = []
+    for seed in (0, 1):
+        for use_dark in (False, True):
+            err, sig, sat = _rank0_errors(seed, use_dark)
+            good = ~sat & (np.abs(err) < 0.5)
+            z.append(err[good] / sig[good])
+    assert 0.7 <= _spread(np.concatenate(z)) <= 1.4
+
+
+def test_printed_edges_are_not_stripes():
+    """A grey frame of a chessboard and dots: steps in reflectance, no laser. Candidates there
+    must be few, and a stripe added to it is rank 0 on every row where it lies on white paper
+    (on a black square in a white neighbourhood the pre-scan's background, a median over
+    80 px, hides a stripe that dim: a known limit, see docs/detection.md)."""
+    rng = np.random.default_rng(7)
+    h, w = 480, 640
+    vv, uu = np.mgrid[0:h, 0:w]
+    paper = np.where(((vv // 40 + uu // 40) % 2 == 0) & (vv > 240), 20.0, 170.0)
+    for cv, cu, r in zip(rng.uniform(0, 240, 15), rng.uniform(0, w, 15), rng.uniform(6, 20, 15)):
+        paper[(vv - cv) ** 2 + (uu - cu) ** 2 < r * r] = 20.0
+    noisy = np.clip(np.rint(paper + rng.normal(0, 2.0, paper.shape)), 0, 255).astype(np.uint8)
+    # Without the flank test the local maxima on these edges gave 3839 candidates; what stays is
+    # the white gap between two nearby dots, which is a bump on both sides.
+    assert len(scanrig.detect_stripe(noisy)) < 0.1 * h
+    centre_u = 321.3 + 0.1 * np.arange(h)
+    stripe = 200.0 * np.exp(-0.5 * ((uu - centre_u[:, None]) / 1.5) ** 2) * paper / 170.0
+    lit = np.clip(np.rint(paper + stripe + rng.normal(0, 2.0, paper.shape)), 0, 255).astype(np.uint8)
+    t = scanrig.detect_stripe(lit)
+    best = t.filter(np.asarray((t["rank"].to_numpy() == 0) & (t["v"].to_numpy() == t["line"].to_numpy())))
+    line, u = best["line"].to_numpy(), best["u"].to_numpy()
+    rows = np.arange(EDGE_ROWS, h - EDGE_ROWS)
+    # rows where the beam lies on white paper, clear of any printed edge (within 6 px, 4 beam
+    # widths, the edge cuts the profile: no symmetric model can place its centre)
+    near = np.rint(centre_u[rows]).astype(int)[:, None] + np.arange(-6, 7)
+    rows = rows[np.all(paper[rows[:, None], near] > 100, axis=1)]
+    assert rows.size > 200
+    found = np.full(h, np.nan)
+    found[line] = u
+    assert np.mean(np.abs(found[rows] - centre_u[rows]) < 1.0) >= 0.99
