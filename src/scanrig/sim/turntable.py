@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanrig.errors import InputError
+from scanrig.errors import EstimationError, InputError
 from scanrig.geometry import Camera, Rig, RigidTransform
 from scanrig.io.atomic import write_bytes_atomic, write_text_atomic
 from scanrig.io.object_poses import object_poses_path, write_object_poses
@@ -188,7 +188,9 @@ def simulate_turntable_session(
         Also write the calibration target shots.
     n_shots : int
         Calibration target poses.
-    target_kind : {"cube", "chessboard", "charuco"}
+    target_kind : {"cube"}
+        The calibration target; only the cube can stand at the world origin in view of the camera
+        (a flat board there faces down), which makes the calibrated world the scene's.
     triangulation_deg : float
         Azimuth between camera and laser around the axis, degrees.
     workers : int, optional
@@ -208,10 +210,9 @@ def simulate_turntable_session(
     if rng is None:
         raise InputError("simulate_turntable_session needs rng (a numpy.random.Generator)")
     angles = turntable_angles(n_frames)
-    if with_calibration:
-        from scanrig.sim.calibration_shots import default_target
-
-        default_target(target_kind)  # an unknown target fails now, not after rendering the scan
+    if with_calibration and target_kind != "cube":
+        raise InputError(f"a turntable session is calibrated with the cube standing on the turntable for shot 000 "
+                         f"(the world frame); target kind {target_kind!r} cannot stand there in view, use 'cube'")
     scene_source = None
     if not isinstance(scene, Scene):
         scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
@@ -229,6 +230,14 @@ def simulate_turntable_session(
     truth = out / "truth"
     for folder in (truth / "meshes", out / "scan" / name):
         folder.mkdir(parents=True, exist_ok=True)
+    if with_calibration:
+        from scanrig.sim.calibration_shots import write_calibration
+
+        shots = write_calibration(out, scene, Rig([rig.camera]), n_shots, target_kind, calib_rng, workers, progress)
+        if not np.array_equal(shots[0].as_matrix(), np.eye(4)):
+            raise EstimationError(f"{out}: the camera does not see the cube standing at the world origin (shot 000), "
+                                  "so its calibration would not be in the scene's frame of scan/object_poses.csv; "
+                                  "aim the camera at the turntable axis (the scene's center_m)")
     stems = [f"{i:05d}" for i in range(n_frames)]
     poses = {stem: rig.world_from_object(a) for stem, a in zip(stems, angles)}
     table = PixelRayTable(rig.camera)
@@ -260,9 +269,6 @@ def simulate_turntable_session(
                 "created_by": "scanrig simulate --rig turntable",
                 **{k: v for k, v in provenance.items() if k == "seed"}}
     if with_calibration:
-        from scanrig.sim.calibration_shots import write_calibration
-
-        write_calibration(out, scene, Rig([rig.camera]), n_shots, target_kind, calib_rng, workers, progress)
         settings["target"] = "target.toml"
     import tomli_w
 
