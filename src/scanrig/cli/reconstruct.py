@@ -23,7 +23,8 @@ def command(
         help="Stripes: add points seen by one camera, intersected with the frame's light plane.")] = True,
     light_plane: Annotated[Optional[Path], typer.Option(
         help="Classic single-camera mode: intersect each stripe point of the plane's camera with this "
-             "calibrated light_plane.toml.")] = None,
+             "calibrated light_plane.toml; with SESSION/scan/object_poses.csv (turntable) the points are "
+             "written in the object frame.")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the robust light-plane fits; recorded in points.ply.")] = 0,
     max_sigma_mm: Annotated[Optional[float], typer.Option(
         help="Leave out points whose predicted error bound exceeds this, mm; any mode. The bound is the "

@@ -88,7 +88,8 @@ def reconstruct_session(
     light_plane_path : str or Path, optional
         Classic single-camera mode: a calibrated ``light_plane.toml``; every brightest stripe
         detection of its camera is intersected with it (no multi-view check, so a single-camera
-        rig is accepted).
+        rig is accepted). When the session has ``scan/object_poses.csv`` (the object moved
+        between frames: turntable, stage), each frame's points are written in the object frame.
     seed : int
         Seed of the robust plane fits (stripe mode); recorded in the header.
     comments : iterable of str
