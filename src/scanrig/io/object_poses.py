@@ -27,6 +27,8 @@ from scanrig.io.csv_rows import read_csv_rows
 
 #: Path of the file inside a session folder.
 OBJECT_POSES_FILE = Path("scan") / "object_poses.csv"
+#: Words that ``points.ply`` headers (the ``mode:`` line) carry when the points are in the object frame.
+OBJECT_FRAME_NOTE = f"object frame of {OBJECT_POSES_FILE.as_posix()}"
 #: Columns, in file order.
 COLUMNS = ("frame", *(f"r{i}{j}" for i in range(3) for j in range(3)), "tx_m", "ty_m", "tz_m")
 #: Largest deviation of ``R Rᵀ`` from the identity accepted in a file (7 printed digits suffice).

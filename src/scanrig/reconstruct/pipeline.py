@@ -10,7 +10,7 @@ import numpy as np
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD
 from scanrig.geometry.uncertainty import sigma_from_covariance
-from scanrig.io.object_poses import OBJECT_POSES_FILE, object_poses_path, read_object_poses
+from scanrig.io.object_poses import OBJECT_FRAME_NOTE, object_poses_path, read_object_poses
 from scanrig.io.rig_file import load_rig
 from scanrig.io.session import Session, read_image
 from scanrig.laser.traces import read_traces
@@ -141,7 +141,7 @@ def reconstruct_session(
         poses_path = object_poses_path(session.root)
         if poses_path.is_file():
             cloud = _to_object_frame(cloud, frames, read_object_poses(poses_path), poses_path)
-            mode += f", object frame of {OBJECT_POSES_FILE.as_posix()}"
+            mode += f", {OBJECT_FRAME_NOTE}"
     elif mode == "spot":
         cloud, summary, _ = reconstruct_spots(rig, table, frames, sigma_floor_px, gate_probability, min_angle_rad,
                                               keep_ambiguous)

@@ -8,6 +8,8 @@ section                     reads
 summary                     everything below, plus the caller's summary rows (e.g. the demo's)
 calibration                 ``rig.toml``, ``calibration_report/`` (summary, residual, coverage and
                             projection-uncertainty plots written by ``scanrig calibrate``)
+light plane                 ``light_plane.toml``, its summary and residual plots in ``calibration_report/``,
+                            ``scan/object_poses.csv`` (only sessions that have one of them)
 detection                   ``traces.parquet`` and ``scan/<camera>/<frame>`` images (overlays)
 point cloud                 ``points.ply``: interactive 3-D view coloured by error/uncertainty
 sampling density            ``points.ply``
@@ -27,9 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.io.atomic import write_text_atomic
+from scanrig.io.object_poses import OBJECT_FRAME_NOTE
 from scanrig.io.session import Session
 from scanrig.report import plots
 from scanrig.report.html import Section, page
+from scanrig.report.light_plane_section import light_plane_sections
 from scanrig.report.viewer import MAX_VIEWER_POINTS, subsample, viewer_html
 
 #: Packages whose versions the report records.
@@ -76,8 +80,9 @@ def write_report(session_root: str | Path, out: str | Path | None = None, *, rng
     progress = progress or (lambda name: None)
     facts: list[tuple[str, str]] = []
     sections = []
-    for name, build in (("calibration", _calibration), ("detection", _detection),
-                        ("point cloud", lambda s, f: _cloud(s, f, rng, max_points)), ("run", _run)):
+    for name, build in (("calibration", _calibration), ("light plane", light_plane_sections),
+                        ("detection", _detection), ("point cloud", lambda s, f: _cloud(s, f, rng, max_points)),
+                        ("run", _run)):
         progress(name)
         sections += build(session, facts)
     summary_section = Section("Summary")
@@ -202,9 +207,10 @@ def _cloud(session: Session, facts: list, rng: np.random.Generator, max_points: 
     if not session.points_path.is_file():
         view.note("points.ply not found: nothing reconstructed yet (scanrig reconstruct).")
         return [view]
-    cloud, _ = read_points(session.points_path)
+    cloud, comments = read_points(session.points_path)
     n = len(cloud)
     facts.append(("points", str(n)))
+    frame = OBJECT_FRAME_NOTE if any(OBJECT_FRAME_NOTE in c for c in comments) else "world frame of rig.toml"
     if n < 2:
         view.note(f"points.ply holds {n} point(s): nothing to show.")
         return [view]
@@ -222,7 +228,7 @@ def _cloud(session: Session, facts: list, rng: np.random.Generator, max_points: 
                ("reprojection residual", "px", cloud.residual_px), ("local spacing", "mm", spacing_m * 1e3),
                ("views", "cameras", cloud.n_views), ("frame", "index", cloud.frame)]
     keep = subsample(n, max_points, rng)
-    view.text(f"{len(keep)} of {n} points (metres, world frame of rig.toml); colour scale from the "
+    view.text(f"{len(keep)} of {n} points (metres, {frame}); colour scale from the "
               "1st to the 99th percentile.")
     view.raw(viewer_html(cloud.p_world[keep], [(lab, unit, v[keep]) for lab, unit, v in fields]))
     if n >= MIN_DENSITY_POINTS:
