@@ -202,7 +202,7 @@ def _scene_file(tmp_path, extra: str):
 def test_colour_stripe_scene_loads_a_colour_camera_and_overexposed_laser():
     scene = load_scene("colour_stripe")
     assert scene.colour == ColourResponse(laser_rgb=(1.0, 0.07, 0.08), ambient_rgb=(1.0, 1.0, 0.92),
-                                          halo_fraction=0.3, halo_radius_px=2.0, bayer=True, jpeg_quality=90)
+                                          halo_fraction=0.3, halo_radius_px=3.0, bayer=True, jpeg_quality=90)
     peak_e = scene.laser.stripe_power_W * nominal_peak_e_per_W(scene.laser, scene.sensor, scene.rig,
                                                                  scene.center_m, "stripe")
     assert peak_e == pytest.approx(16.0 * scene.sensor.full_well_e, rel=1e-12)
@@ -248,11 +248,13 @@ def test_scene_refuses_jpeg_from_a_16_bit_sensor():
 
 
 # --- rendering and sessions ------------------------------------------------------------------------
-#: Rows whose direct laser peak exceeds this multiple of the full well are checked in sessions.
-STRONG_ROW_FULL_WELLS = 3.0
-#: 4:2:0 JPEG smears R - G over 2 px: where R's clipped band is only ~3 px wide (half-size images)
-#: a few rows lose the clip at the centre or move G's peak by 2 px (measured 1 to 8 % of rows).
-SESSION_ROW_FRACTION = 0.9
+#: Rows whose direct laser peak exceeds this multiple of the full well are checked in sessions:
+#: G's rise there (~7 % of the peak) clearly exceeds the printed texture's contrast, which on
+#: weaker rows can put G's maximum on bright paper beside the stripe.
+STRONG_ROW_FULL_WELLS = 5.0
+#: Noise and 4:2:0 JPEG (R - G smeared over 2 px) move G's maximum or R's clip at the centre on
+#: a few of those rows (measured 0 to 2 % at seed 1).
+SESSION_ROW_FRACTION = 0.95
 
 
 def _colour_view(scale: float = 0.25):
