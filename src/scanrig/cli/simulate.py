@@ -31,6 +31,8 @@ def command(
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
     identical files. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
     fixed laser sheet, scan/object_poses.csv, truth/light_plane.toml and meshes in the object frame.
+    A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
+    images, .jpg when its jpeg_quality is set.
 
     Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 6 --seed 1
 
