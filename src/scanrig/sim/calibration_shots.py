@@ -142,9 +142,9 @@ def _n_cameras_seeing(target, world_from_target: RigidTransform, rig: Rig) -> in
 
 def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kind: str,
                       rng: np.random.Generator, workers: int | None = None,
-                      progress=None) -> list[RigidTransform]:
+                      progress=None) -> dict[str, RigidTransform]:
     """Write ``target.toml``, ``calibration/<camera>/<shot>.png`` (``.jpg`` from a colour camera
-    that stores JPEG) and ``truth/target_poses.csv``; returns ``world_from_target`` of every shot.
+    that stores JPEG) and ``truth/target_poses.csv``; returns ``world_from_target`` by shot stem.
 
     Poses are drawn from ``rng`` in order; each shot's noise has its own spawned generator.
     """
@@ -182,4 +182,4 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
     for stem, pose in zip(stems, poses):
         lines.append(",".join([stem, *(repr(float(v)) for v in pose.R.ravel()), *(repr(float(v)) for v in pose.t)]))
     write_text_atomic(out / "truth" / "target_poses.csv", "\n".join(lines) + "\n")
-    return poses
+    return dict(zip(stems, poses))

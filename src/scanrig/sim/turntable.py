@@ -43,6 +43,9 @@ from scanrig.sim.session_writer import Progress, frames_csv, laser_csv, write_tr
 TRIANGULATION_DEG = 30.0
 #: Built-in scene made for this rig: a matte object 400 mm from the camera.
 TURNTABLE_SCENE = "turntable"
+#: Peak of the laser stripe on the target in light-plane shots, as a share of the full well (added
+#: to the paper's :data:`~scanrig.sim.calibration_shots.PAPER_FILL`, the sum stays below 1).
+LASER_FILL = 0.25
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,56 @@ def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: R
     return view.sensor.expose(electrons, rng), trace
 
 
+def write_light_plane_shots(out: Path, scene: Scene, rig: TurntableRig, shots: dict, rng: np.random.Generator,
+                            workers: int | None = None, progress: Progress | None = None) -> None:
+    """Write ``light_plane/<camera>/<shot>.png``: each calibration pose again, with the laser on.
+
+    The target stands where its calibration shot of the same stem shows it (that image is the
+    laser-off view of the pose), with the same exposure; the laser's power is set so that its
+    stripe peaks :data:`LASER_FILL` of the full well above the white paper, so it does not clip.
+    Poses whose target the sheet misses give an image without a stripe.
+
+    Parameters
+    ----------
+    out : Path
+        Session folder.
+    scene : Scene
+        Lighting, sensor and laser optics (its objects are not rendered).
+    rig : TurntableRig
+    shots : dict of str to RigidTransform
+        ``world_from_target`` by calibration shot stem (:func:`~scanrig.sim.calibration_shots.write_calibration`).
+    rng : numpy.random.Generator
+        One spawned generator per shot (speckle and noise).
+    workers : int, optional
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+    """
+    from scanrig.sim.calibration_shots import calibration_sensor, default_target, target_scene
+
+    target = default_target("cube")
+    sensor = calibration_sensor(scene)
+    stems = list(shots)
+    shot_rngs = rng.spawn(len(stems))
+    camera = rig.camera
+    table = PixelRayTable(camera)
+    table.xy  # noqa: B018 - solve the camera's rays once, before forking
+    folder = out / "light_plane" / camera.name
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def render_shot(i: int) -> None:
+        posed = target_scene(target, shots[stems[i]], scene)
+        view = CameraView(camera, posed, sensor, ray_table=table)
+        electrons = view.background_e.copy()
+        window = view.laser_window(trace_laser(rig.laser, scene.laser, posed), shot_rngs[i])
+        if window is not None and window.electrons.max() > 0:
+            gain = LASER_FILL * sensor.full_well_e / window.electrons.max()
+            electrons[window.slices] += gain * window.electrons
+        write_image(folder / f"{stems[i]}.png", sensor.expose(electrons, shot_rngs[i]))
+
+    report = (lambda done: progress("light plane", done, len(stems))) if progress else None
+    run_indexed(render_shot, len(stems), workers, report)
+
+
 def simulate_turntable_session(
     out: str | Path,
     scene: Scene | str = TURNTABLE_SCENE,
@@ -164,8 +217,9 @@ def simulate_turntable_session(
 
         scan/cam0/<frame>.png        one frame per turntable angle (no dark frame: the object moves)
         scan/object_poses.csv        world_from_object of every frame (the turntable's angles)
-        calibration/cam0/<shot>.png, target.toml   (with_calibration; shot 000 at the world origin
-                                     when the camera sees it, so the calibrated world is the scene's)
+        calibration/cam0/<shot>.png, target.toml   (with_calibration; shot 000 at the world origin,
+                                     so the calibrated world is the scene's)
+        light_plane/cam0/<shot>.png  (with_calibration) the same poses with the laser on
         truth/rig.toml               the true camera
         truth/light_plane.toml       the true laser sheet (world frame; exact, so zero residual)
         truth/meshes/<object>.ply    object meshes in the object frame (the world at angle 0)
@@ -185,7 +239,8 @@ def simulate_turntable_session(
     rng : numpy.random.Generator
         Source of all randomness (noise, speckle, target poses).
     with_calibration : bool
-        Also write the calibration target shots.
+        Also write the calibration target shots, laser off and laser on (for
+        ``scanrig calibrate --light-plane``).
     n_shots : int
         Calibration target poses.
     target_kind : {"cube"}
@@ -224,7 +279,7 @@ def simulate_turntable_session(
     progress = progress or (lambda stage, done, total: None)
     provenance = dict(provenance or {})
     frame_rngs = rng.spawn(n_frames)
-    (calib_rng,) = rng.spawn(1)
+    calib_rng, light_rng = rng.spawn(2)   # children are keyed by index: adding one keeps the others
 
     name = rig.camera.name
     truth = out / "truth"
@@ -234,10 +289,11 @@ def simulate_turntable_session(
         from scanrig.sim.calibration_shots import write_calibration
 
         shots = write_calibration(out, scene, Rig([rig.camera]), n_shots, target_kind, calib_rng, workers, progress)
-        if not np.array_equal(shots[0].as_matrix(), np.eye(4)):
+        if not np.array_equal(next(iter(shots.values())).as_matrix(), np.eye(4)):
             raise EstimationError(f"{out}: the camera does not see the cube standing at the world origin (shot 000), "
                                   "so its calibration would not be in the scene's frame of scan/object_poses.csv; "
                                   "aim the camera at the turntable axis (the scene's center_m)")
+        write_light_plane_shots(out, scene, rig, shots, light_rng, workers, progress)
     stems = [f"{i:05d}" for i in range(n_frames)]
     poses = {stem: rig.world_from_object(a) for stem, a in zip(stems, angles)}
     table = PixelRayTable(rig.camera)
