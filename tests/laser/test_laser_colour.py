@@ -58,28 +58,25 @@ def test_without_a_laser_off_frame_rank0_is_within_half_a_pixel_on_95_percent(se
     assert np.mean(np.abs(err) < 0.5) >= 0.95
 
 
-@pytest.mark.parametrize("use_dark", [False, True])
-def test_sigma_of_clipped_centres_is_honest(use_dark):
+_NEAR_INK_EDGE = pytest.mark.xfail(strict=True, reason="the beam on ink within a few pixels of paper: "
+                                   "the halo of the paper side biases the centre by 0.2-0.4 px, which the "
+                                   "residuals do not show; sigma is understated about two-fold (spread 2.1)")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("use_dark, clipped", [(False, True), (True, True), (False, False),
+                                               pytest.param(True, False, marks=_NEAR_INK_EDGE)])
+def test_sigma_is_honest(use_dark, clipped):
+    """Normalised errors of rank-0 centres (within 0.5 px of the truth) over four seeds: clipped
+    rows (the beam on paper) and unclipped ones (the beam on printed ink)."""
     z = []
-    for seed in (0, 1):
+    for seed in range(4):
         err, sig, sat = _rank0_errors(seed, use_dark)
-        good = sat & (np.abs(err) < 0.5)
+        good = (sat == clipped) & (np.abs(err) < 0.5)
         z.append(err[good] / sig[good])
     z = np.concatenate(z)
-    assert z.size > 600
+    assert z.size > (1000 if clipped else 100)
     assert 0.7 <= _spread(z) <= 1.4
-
-
-@pytest.mark.xfail(strict=True, reason="the halo makes unclipped profiles non-Gaussian; the misfit "
-                   "inflation of sigma then overstates it (spread 0.3-0.7)")
-def test_sigma_of_unclipped_centres_is_honest():
-    z = []
-    for seed in (0, 1):
-        for use_dark in (False, True):
-            err, sig, sat = _rank0_errors(seed, use_dark)
-            good = ~sat & (np.abs(err) < 0.5)
-            z.append(err[good] / sig[good])
-    assert 0.7 <= _spread(np.concatenate(z)) <= 1.4
 
 
 def test_printed_edges_are_not_stripes():

@@ -13,14 +13,15 @@ with ``g`` the unit-peak pixel-integrated Gaussian of :mod:`scanrig.laser.fit`, 
 laser channel's) and a background ``b_c`` of each. Pixels clipped in the frame or in the dark
 frame are left out in that channel only; each channel is weighted by its own noise. A halo of
 light scattered below the surface widens the profile symmetrically: it does not move the centre,
-and the misfit it leaves raises the reported σ (:func:`scanrig.laser.fit.misfit_scale`).
+and where the model leaves a misfit on the flanks the reported σ grows
+(:func:`scanrig.laser.fit.centre_misfit`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _profile, fit_batch, misfit_scale
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _profile, centre_misfit, fit_batch
 from scanrig.laser.image import ColourFrames, estimate_noise
 
 #: Parameter order of the colour model.
@@ -90,7 +91,12 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     whitened = y_minor / np.repeat(noise, offs.size)[:, None]
     res = fit_batch(_model(offs.astype(float), noise), whitened, mask, p0, lower, upper, minor=True)
     p = res.params
-    var = res.info_inv[:, 0, 0] * misfit_scale(res.chi2_unit, res.dof, 1.0)
+    var = res.info_inv[:, 0, 0].copy()
+    good = np.isfinite(var)
+    if good.any():  # whitened pixels: unit variance where fitted
+        jac = res.jac.transpose(2, 1, 0)[..., good]
+        var[good] *= centre_misfit(jac, res.info_inv[good], res.residuals.T[:, good],
+                                   mask[:, good].astype(float), res.dof[good], (0,))
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
     peak = p[:, 2 + laser]
     out = {"index": np.arange(line.size), "centre": pos + p[:, 0], "var": var, "peak": peak,

@@ -425,22 +425,34 @@ def _spd_inverse(jac: np.ndarray) -> np.ndarray:
 MISFIT_LEVEL = 0.999
 
 
-def misfit_scale(chi2_unit: np.ndarray, dof: np.ndarray, noise_sigma: float) -> np.ndarray:
-    """Variance inflation of each fit: χ²/dof when the misfit is significant, else 1.
+def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, pixel_var: np.ndarray,
+                  dof: np.ndarray, centre: tuple[int, ...]) -> np.ndarray:
+    """Variance inflation of the centre where the model does not explain the window.
 
-    With white noise of the estimated σ, χ²/dof scatters around 1 and the covariance
-    ``σ² (JᵀJ)⁻¹`` is already right; scaling every fit by its own χ²/dof would only add noise to
-    the reported sigma. Where χ² exceeds its 99.9 % quantile the model does not explain the window
-    (shot noise on a bright trace, texture, a nearby reflection) and the covariance is inflated by
-    χ²/dof.
+    With the noise model right, χ²/dof of a window scatters around 1 and the covariance is right
+    as it is. Where χ² exceeds its ``MISFIT_LEVEL`` quantile the model does not explain the window
+    (a halo, texture, a nearby reflection, shot noise beyond the model), but how much that matters
+    depends on where: the centre moves with the pixels by ``δx0 = Σ_i a_i δy_i``, ``a`` its row of
+    ``(JᵀJ)⁻¹ Jᵀ``, so a misfit at the window's end (a printed edge) hardly moves it and one on the
+    flanks does. Such windows get the sandwich ratio ``Σ a_i² r_i² / Σ a_i² v_i`` (residuals
+    ``r``, modelled pixel variances ``v``): what the residuals say about the centre's variance over
+    what the noise model says (at least 1). Scaling by the whole window's χ²/dof instead overstated
+    the σ of stripes beside printed edges three-fold.
 
     Parameters
     ----------
-    chi2_unit : (n,) float array, DN²
-        Sums of squared residuals.
+    jac : (P, M, n) float array
+        Candidate-minor Jacobian at the solution (zero on pixels not fitted).
+    info_inv : (n, P, P) float array
+        ``(JᵀJ)⁻¹``.
+    residuals : (M, n) float array
+    pixel_var : (M, n) float array
+        Modelled variance of each fitted pixel (0 where not fitted), in the units of ``residuals²``.
     dof : (n,) int array
-        Degrees of freedom.
-    noise_sigma : float, DN
+        Degrees of freedom of each fit.
+    centre : tuple of int
+        Indices of the centre's parameters (one for a stripe, two for a spot); their ratios are
+        averaged.
 
     Returns
     -------
@@ -448,9 +460,19 @@ def misfit_scale(chi2_unit: np.ndarray, dof: np.ndarray, noise_sigma: float) -> 
         Factor ≥ 1 for the covariance.
     """
     dof = np.maximum(dof, 1)
-    reduced = chi2_unit / noise_sigma**2 / dof
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi2 = np.where(pixel_var > 0, residuals**2 / pixel_var, 0.0).sum(axis=0)
     table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
-    return np.where(reduced > _misfit_limits(table_size)[dof - 1], reduced, 1.0)
+    misfit = chi2 / dof > _misfit_limits(table_size)[dof - 1]
+    factor = np.ones(dof.size)
+    if misfit.any():
+        a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
+        a2 = a * a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = (np.einsum("kmn,mn->kn", a2, residuals[:, misfit] ** 2)
+                     / np.einsum("kmn,mn->kn", a2, pixel_var[:, misfit])).mean(axis=0)
+        factor[misfit] = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
+    return factor
 
 
 @functools.lru_cache(maxsize=16)
@@ -470,7 +492,7 @@ SHOT_NOISE_SIGNIFICANCE = 3.0
 _SLOPE_SAMPLE = 256
 
 
-def parameter_covariance(res: FitResult, noise_sigma: np.ndarray) -> np.ndarray:
+def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[int, ...] = (1,)) -> np.ndarray:
     """Covariance of the fitted parameters, honest under signal-dependent (shot) noise.
 
     The pixel variance is modelled as ``σ_c² + k · s_i``: σ_c the local background noise of the
@@ -481,13 +503,16 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray) -> np.ndarray:
     exceeds ``SHOT_NOISE_SIGNIFICANCE`` standard errors, so white noise keeps the plain
     ``σ² (JᵀJ)⁻¹``. The least-squares estimate is unweighted;
     under the modelled variance its covariance is the sandwich ``(JᵀJ)⁻¹ Jᵀ V J (JᵀJ)⁻¹``. Finally
-    :func:`misfit_scale` inflates fits whose normalised χ² is still significant.
+    :func:`centre_misfit` inflates fits whose χ² is still significant, by what their residuals
+    say about the centre.
 
     Parameters
     ----------
     res : FitResult
     noise_sigma : (n,) float array, DN
         Background noise σ at each candidate.
+    centre : tuple of int
+        Indices of the centre's parameters, for :func:`centre_misfit`.
 
     Returns
     -------
@@ -528,6 +553,8 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray) -> np.ndarray:
     else:
         pixel_var = np.where(fitted, base_var, 0.0)
         cov = base_var[:, None, None] * info
-    with np.errstate(divide="ignore", invalid="ignore"):
-        chi2_normalised = np.where(fitted, r**2 / pixel_var, 0.0).sum(axis=0)
-    return cov * misfit_scale(chi2_normalised, res.dof, 1.0)[:, None, None]
+    factor = np.ones(len(cov))
+    if good.any():
+        factor[good] = centre_misfit(np.take(jac, usable, axis=-1), info[usable], np.take(r, usable, axis=1),
+                                     np.take(pixel_var, usable, axis=1), res.dof[usable], centre)
+    return cov * factor[:, None, None]

@@ -127,7 +127,7 @@ def _fit_spots(li, cand: Candidates, max_width_px: float) -> dict[str, np.ndarra
     res = fit_batch(minor_model_2d(x, x), y.reshape(-1, n), mask.reshape(-1, n), p0, lower, upper, minor=True)
     p = res.params
     noise = li.noise_at(cand.u, cand.v).astype(np.float64)
-    cov = parameter_covariance(res, noise)[:, 1:3, 1:3]
+    cov = parameter_covariance(res, noise, centre=(1, 2))[:, 1:3, 1:3]
     ok = (np.all(np.isfinite(cov), axis=(1, 2)) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX)
           & (np.abs(p[:, 2]) <= MAX_SHIFT_PX) & (res.dof > 0))
     core = (np.zeros(n, bool) if saturated is None
