@@ -85,7 +85,7 @@ def test_calibrate_light_plane_from_target_poses():
         q = cam.project(line) + rng.normal(0.0, 0.2, (200, 2))
         targets.append((t_normal, height))
         pixels.append(q)
-    plane = calibrate_light_plane(cam, targets, pixels, rng)
+    plane = calibrate_light_plane(cam, targets, pixels, rng).plane
     assert abs(abs(plane.normal @ laser_normal) - 1.0) < 1e-5
     assert abs(abs(plane.offset) - 0.02) < 2e-4
     with pytest.raises(InputError, match="a light plane needs the stripe on the target at 2 or more poses, got 1"):

@@ -235,9 +235,19 @@ def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str
     progress_factory : callable, optional
         ``progress_factory(total) -> advance()`` for a progress display during detection.
     """
-    from scanrig.calibration.corners_csv import read_corners_csv, write_corners_csv
-    from scanrig.calibration.summary import format_summary, write_outliers_csv
-    from scanrig.io.rig_file import save_rig
+    result, obs = solve_session(root, model, corners_csv, cross_validate, progress_factory)
+    write_session_outputs(root, result, obs, plots, command_line)
+    return result
+
+
+def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
+                  cross_validate: bool = True, progress_factory=None) -> tuple[CalibrationResult, Observations]:
+    """Detect and calibrate a session folder without writing anything.
+
+    Parameters are those of :func:`calibrate_session`. Returns the result and the detections
+    (for :func:`write_session_outputs`).
+    """
+    from scanrig.calibration.corners_csv import read_corners_csv
     from scanrig.io.session import Session, read_image
     from scanrig.targets import load_target
 
@@ -260,14 +270,25 @@ def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str
         obs, not_found = detect_session(session, target, cameras, advance)
     result = calibrate(obs, target, model, cross_validate=cross_validate)
     result.not_found = not_found
+    return result, obs
+
+
+def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Observations, plots: bool = True,
+                          command_line: str = "") -> None:
+    """Write ``calibration_report/`` and then ``rig.toml`` (atomically) of a solved session."""
+    from scanrig.calibration.corners_csv import write_corners_csv
+    from scanrig.calibration.summary import format_summary, write_outliers_csv
+    from scanrig.io.atomic import write_text_atomic
+    from scanrig.io.rig_file import save_rig
+    from scanrig.io.session import Session
+
+    session = Session(Path(root))
+    target = result.target
     report = session.root / REPORT_DIR
     report.mkdir(exist_ok=True)
     write_corners_csv(obs, report / "corners.csv")
     write_outliers_csv(result, report / "outliers.csv")
-    summary = format_summary(result)
-    from scanrig.io.atomic import write_text_atomic
-
-    write_text_atomic(report / "summary.txt", summary)
+    write_text_atomic(report / "summary.txt", format_summary(result))
     if plots:
         from scanrig.calibration.plots import write_plots
 
@@ -288,4 +309,25 @@ def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str
     comments = [f"written by scanrig {scanrig.__version__} on {metadata['date']}: {command_line}",
                 f"RMS reprojection error {metadata['rms_px']} px over {metadata['n_observations']} points"]
     save_rig(result.rig, session.rig_path, result.camera_info(), metadata, comments)
-    return result
+
+
+def shot_pose(result: CalibrationResult, shot: str):
+    """``world_from_target`` of a calibration shot as the bundle adjustment solved it (None when the
+    shot was not solved: target not found, or the view left out)."""
+    names = result.bundle.obs.shot_names
+    if shot not in names:
+        return None
+    return result.bundle.state.world_from_target[names.index(shot)]
+
+
+def locate_target(image, target: Target, camera):
+    """``world_from_target`` of the target in one image of a calibrated camera (detection and PnP),
+    or None when the target is not found there."""
+    from scanrig.calibration.detect import detect_target
+    from scanrig.calibration.init import view_pose
+
+    det = detect_target(image, target)
+    if len(det.point_ids) == 0:
+        return None
+    cam_from_target, _ = view_pose(camera, target, det.point_ids, det.uv)
+    return None if cam_from_target is None else camera.cam_from_world.inverse() @ cam_from_target

@@ -16,6 +16,9 @@ def command(
     corners: Annotated[Path | None, typer.Option(help="Use detections from this CSV (image,camera,point_id,x,y[,weight]) instead of detecting.")] = None,
     cross_validate: Annotated[bool, typer.Option(help="Also calibrate odd and even shots apart and compare.")] = True,
     plots: Annotated[bool, typer.Option(help="Write residual/uncertainty PNGs to calibration_report/.")] = True,
+    light_plane: Annotated[bool, typer.Option("--light-plane", help="Also calibrate the fixed laser's plane of every camera with light_plane/<camera>/ images; writes light_plane.toml.")] = False,
+    color: Annotated[str | None, typer.Option(help="Laser colour for --light-plane: red, green, blue or grey (default: laser_color of session.toml, else grey).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of the robust light-plane fit; recorded in light_plane.toml.")] = 0,
 ):
     """Calibrate all cameras jointly from target images; write rig.toml and calibration_report/.
 
@@ -23,20 +26,118 @@ def command(
     initialises without user input, runs one robust bundle adjustment over all intrinsics and
     poses, and reports RMS, parameter sigmas, rejected outliers and an odd/even cross-validation.
 
+    With --light-plane (classic single-camera mode) it then fits the plane of the fixed line
+    laser from light_plane/<camera>/<shot> images of the target with the stripe across it (a
+    calibration/<camera>/<shot> image of the same stem is the same pose with the laser off), and
+    writes light_plane.toml (light_plane_<camera>.toml with several such cameras) in the world
+    frame of rig.toml. Nothing is written when a step fails.
+
     Example: scanrig calibrate demo_session --model opencv5
+
+    Example: scanrig calibrate ciclop_session --light-plane --color red
     """
     from rich.progress import Progress
 
-    from scanrig.calibration.pipeline import calibrate_session
+    from scanrig.calibration.pipeline import solve_session, write_session_outputs
     from scanrig.calibration.summary import format_summary
 
+    command_line = "scanrig " + shlex.join(sys.argv[1:])
+    laser = _light_plane_inputs(session, color) if light_plane else None
     with Progress(transient=True) as progress:
         def factory(total):
             task = progress.add_task("detecting target", total=total)
             return lambda: progress.advance(task)
 
-        result = calibrate_session(session, model=model, corners_csv=corners, cross_validate=cross_validate,
-                                   plots=plots, command_line="scanrig " + shlex.join(sys.argv[1:]),
-                                   progress_factory=factory)
+        result, obs = solve_session(session, model=model, corners_csv=corners, cross_validate=cross_validate,
+                                    progress_factory=factory)
+    planes = _light_planes(session, result, *laser, seed) if laser else []
+    write_session_outputs(session, result, obs, plots, command_line)
     typer.echo(format_summary(result), nl=False)
     typer.echo(f"wrote {Path(session) / 'rig.toml'}")
+    for line in _write_light_planes(session, planes, laser[1] if laser else "", seed, command_line, plots):
+        typer.echo(line, nl=False)
+
+
+def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
+    """``camera -> {stem: path}`` of the light-plane images, and the laser colour; checked before solving."""
+    from scanrig.errors import FileFormatError, InputError
+    from scanrig.io.session import IMAGE_SUFFIXES, Session, natural_key
+    from scanrig.laser.image import LASER_COLORS
+
+    sess = Session(session)
+    color = color or sess.settings().get("laser_color", "grey")
+    if color not in LASER_COLORS:
+        raise InputError(f"--color must be one of {list(LASER_COLORS)}, got {color!r}")
+    folder = sess.root / "light_plane"
+    images = {}
+    if folder.is_dir():
+        for cam in sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: natural_key(p.name)):
+            paths = sorted((p for p in cam.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                           key=lambda p: natural_key(p.name))
+            if paths:
+                images[cam.name] = {p.stem: p for p in paths}
+    if not images:
+        raise FileFormatError(folder, "no light-plane images (light_plane/<camera>/<shot>.png: the target with "
+                                      "the laser stripe across it)")
+    unknown = sorted(set(images) - set(sess.camera_names("calibration")))
+    if unknown:
+        raise FileFormatError(folder, f"cameras {unknown} have light-plane images but no calibration/ folder")
+    return images, color
+
+
+def _light_planes(session: Path, result, images: dict, color: str, seed: int) -> list:
+    """``(camera, fit, skipped)`` for every camera with light-plane images.
+
+    A light-plane image whose stem names a solved calibration shot takes that shot's pose and its
+    image as the dark frame; any other is located by detecting the target in it (PnP).
+    """
+    import numpy as np
+
+    from scanrig.calibration.pipeline import locate_target, shot_pose
+    from scanrig.io.session import IMAGE_SUFFIXES, read_image
+    from scanrig.reconstruct.light_plane_session import LightPlanePose, calibrate_light_plane_images
+
+    out = []
+    rng = np.random.default_rng(seed)
+    for cam_name, paths in images.items():
+        camera = result.rig[cam_name]
+        laser_off = {p.stem: p for p in (Path(session) / "calibration" / cam_name).iterdir()
+                     if p.suffix.lower() in IMAGE_SUFFIXES}
+        poses, skipped = [], []
+        for stem, path in paths.items():
+            pose = shot_pose(result, stem) if stem in laser_off else None
+            if pose is None:
+                pose = locate_target(read_image(path), result.target, camera)
+            if pose is None:
+                skipped.append(f"{path}: the target was not found, skipped")
+                continue
+            poses.append(LightPlanePose(stem, path, laser_off.get(stem), pose))
+        fit, no_stripe = calibrate_light_plane_images(camera, result.target, poses, color, rng)
+        out.append((cam_name, fit, skipped + no_stripe))
+    return out
+
+
+def _write_light_planes(session: Path, planes: list, color: str, seed: int, command_line: str,
+                        plots: bool) -> list[str]:
+    """Write each plane file, its summary and plot; returns the summaries."""
+    from scanrig.calibration.pipeline import REPORT_DIR
+    from scanrig.io.atomic import write_text_atomic
+    from scanrig.reconstruct.light_plane import save_light_plane
+    from scanrig.reconstruct.light_plane_report import format_light_plane_summary, write_light_plane_plot
+
+    report = Path(session) / REPORT_DIR
+    summaries = []
+    for cam_name, fit, skipped in planes:
+        name = "light_plane.toml" if len(planes) == 1 else f"light_plane_{cam_name}.toml"
+        summary = format_light_plane_summary(fit, cam_name, skipped)
+        if plots:
+            write_light_plane_plot(fit, cam_name, report / f"light_plane_{cam_name}.png")
+        save_light_plane(Path(session) / name, fit.plane, cam_name,
+                         comments=(f"{command_line} (seed {seed})",
+                                   f"{int(fit.inliers.sum())} stripe points of {len(fit.poses)} poses, "
+                                   f"RMS {1e3 * fit.plane.residual_m:.4f} mm"),
+                         extra={"n_poses": len(fit.poses), "laser_color": color})
+        summaries.append(summary + f"wrote {Path(session) / name}\n")
+    if planes:
+        write_text_atomic(report / "light_plane_summary.txt", "".join(summaries))
+    return summaries

@@ -7,6 +7,8 @@ Written files::
     scan/<camera>/dark.png                the laser-off frame
     target.toml, calibration/<camera>/<shot>.png   (with_calibration)
                                           (colour cameras: RGB, .jpg when they store JPEG)
+    light_plane/<camera>/lp<NN>.png       laser-on target shots of the first camera (light_plane_shots),
+                                          laser-off twins in calibration/, true sheet in truth/light_plane.toml
     truth/rig.toml                        the true cameras (same format as a calibration result)
     truth/meshes/<object>.ply             object meshes in world coordinates, metres
     truth/frames.csv                      frame, kind, x, y, z: primary and secondary hits
@@ -55,6 +57,7 @@ def simulate_session(
     with_calibration: bool = True,
     n_shots: int = 12,
     target_kind: str = "cube",
+    light_plane_shots: int = 0,
     rig: Rig | None = None,
     workers: int | None = None,
     progress: Progress | None = None,
@@ -79,6 +82,9 @@ def simulate_session(
         Also write ``target.toml`` and ``calibration/`` images of the target in ``n_shots`` poses.
     n_shots : int
     target_kind : {"cube", "chessboard", "charuco"}
+    light_plane_shots : int
+        Poses of the (planar) target across a fixed line laser beside the first camera, for
+        ``scanrig calibrate --light-plane`` (:mod:`scanrig.sim.light_plane_shots`); 0 for none.
     rig : Rig, optional
         Cameras to use instead of the scene's default rig.
     workers : int, optional
@@ -101,6 +107,8 @@ def simulate_session(
         from scanrig.sim.calibration_shots import default_target
 
         default_target(target_kind)  # an unknown target fails now, not after rendering the scan
+    if light_plane_shots and target_kind == "cube":
+        raise InputError("light-plane shots need a planar target: use target_kind 'chessboard' or 'charuco'")
     scene_source = None
     if not isinstance(scene, Scene):
         scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
@@ -111,7 +119,7 @@ def simulate_session(
         raise InputError(f"{out}: output session folder is an existing file")
     progress = progress or (lambda stage, done, total: None)
     provenance = dict(provenance or {})
-    bank_rngs, frame_rngs, dark_rng, calib_rng, survey_rng = _spawn(rng, len(rig), n_frames)
+    bank_rngs, frame_rngs, dark_rng, calib_rng, survey_rng, light_rng = _spawn(rng, len(rig), n_frames)
 
     truth = out / "truth"
     for folder in [truth / "meshes"] + [out / "scan" / name for name in rig.names]:
@@ -144,6 +152,16 @@ def simulate_session(
 
         write_calibration(out, scene, rig, n_shots, target_kind, calib_rng, workers, progress)
         settings["target"] = "target.toml"
+    if light_plane_shots:
+        from scanrig.sim.calibration_shots import default_target
+        from scanrig.sim.light_plane_shots import write_light_plane_shots
+        from scanrig.targets import save_target
+
+        target = default_target(target_kind)
+        save_target(target, out / "target.toml")
+        write_light_plane_shots(out, scene, rig, target, light_plane_shots, light_rng, workers=workers,
+                                progress=progress)
+        settings["target"] = "target.toml"
     import tomli_w
 
     write_text_atomic(out / "session.toml", "# simulated session; ground truth in truth/\n" + tomli_w.dumps(settings))
@@ -153,8 +171,8 @@ def simulate_session(
 def _spawn(rng: np.random.Generator, n_cams: int, n_frames: int):
     banks = rng.spawn(n_cams)
     frames = rng.spawn(n_frames)
-    dark, calib, survey = rng.spawn(3)   # children are keyed by index: adding one keeps the others
-    return banks, frames, dark, calib, survey
+    dark, calib, survey, light = rng.spawn(4)   # children are keyed by index: adding one keeps the others
+    return banks, frames, dark, calib, survey, light
 
 
 def _render_frames(out, scene, views, poses, stems, frame_rngs, workers, progress) -> list:

@@ -1,0 +1,195 @@
+"""Light-plane calibration from a session's ``light_plane/<camera>/`` images.
+
+Each laser-on image shows the calibration target at a pose known from the calibration (the
+caller supplies ``world_from_target``), crossed by the fixed laser's stripe. The stripe's centres
+(:func:`scanrig.detect_stripe`, the brightest peak of each scan line) are kept only inside the
+outline of a target board facing the camera (the whole printed board, margins included, its
+edges projected through the camera's distortion); their rays meet that board's plane in 3-D
+points of the light plane, and :func:`scanrig.reconstruct.light_plane.fit_light_plane` fits the
+plane to the points of all poses. Light on the floor, the turntable or the wall never enters the
+fit, and a pose whose stripe is not on the target is named and left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.reconstruct.light_plane import LightPlaneFit, fit_light_plane, intersect_plane, plane_from
+
+#: A pose with fewer stripe points on the target than this has no usable stripe.
+MIN_POSE_POINTS = 20
+#: Samples per board edge of the projected outline (the edges bend under lens distortion).
+OUTLINE_SAMPLES = 32
+
+
+@dataclass(frozen=True)
+class LightPlanePose:
+    """One laser-on image of the target and what is known about its pose.
+
+    Attributes
+    ----------
+    name : str
+        The image's stem.
+    image_path : Path
+        The laser-on image.
+    dark_path : Path or None
+        The laser-off image of the same pose (subtracted before the stripe detection).
+    world_from_target : RigidTransform
+        The target's pose, world frame of the calibrated camera.
+    """
+
+    name: str
+    image_path: Path
+    dark_path: Path | None
+    world_from_target: object
+
+
+def board_outlines(camera, target, world_from_target) -> list:
+    """Outlines in the image of the target's boards that face the camera.
+
+    Parameters
+    ----------
+    camera : Camera
+    target : Target
+        Boards with ``target_from_board`` and ``size_m`` (printed area, margins included).
+    world_from_target : RigidTransform
+
+    Returns
+    -------
+    list of (ndarray of shape (4 * OUTLINE_SAMPLES, 2), RigidTransform)
+        Per facing board: its outline polygon in pixels and ``world_from_board``.
+    """
+    s = np.linspace(0.0, 1.0, OUTLINE_SAMPLES, endpoint=False)[:, None]
+    out = []
+    for board in target.boards:
+        world_from_board = world_from_target @ board.target_from_board
+        # board z points into the board: it faces the camera when the camera is on its -z side
+        if (camera.center_world - world_from_board.t) @ world_from_board.R[:, 2] >= 0:
+            continue
+        w, h = board.size_m
+        corners = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h], [0.0, 0.0]])
+        edge = np.concatenate([a + s * (b - a) for a, b in zip(corners[:-1], corners[1:])])
+        polygon = camera.project(world_from_board.apply(np.c_[edge, np.zeros(len(edge))]))
+        if np.all(np.isfinite(polygon)):
+            out.append((polygon, world_from_board))
+    return out
+
+
+def inside_polygon(q: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd test of pixels ``(N, 2)`` against a closed polygon ``(M, 2)``; ``(N,)`` bool."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    u, v = q[:, :1], q[:, 1:]
+    crosses = (a[:, 1] > v) != (b[:, 1] > v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u_cross = a[:, 0] + (v - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (np.count_nonzero(crosses & (u < u_cross), axis=1) % 2) == 1
+
+
+def stripe_points(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
+                  color: str) -> np.ndarray:
+    """3-D points ``(n, 3)`` of the laser stripe on the target at one pose, world frame, metres.
+
+    The brightest stripe centre of every scan line within the outlines' bounding box, kept where
+    it falls inside a facing board's outline, intersected with that board's plane.
+    """
+    from scanrig.laser.stripes import detect_stripe
+
+    outlines = board_outlines(camera, target, world_from_target)
+    if not outlines:
+        return np.zeros((0, 3))
+    corners = np.concatenate([polygon for polygon, _ in outlines])
+    u0, v0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
+    u1, v1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 1, [image.shape[1], image.shape[0]])
+    if u1 - u0 < 2 or v1 - v0 < 2:
+        return np.zeros((0, 3))
+    table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)))
+    first = np.asarray(table.column("rank")) == 0
+    q = np.column_stack([np.asarray(table.column("u")), np.asarray(table.column("v"))])[first]
+    points = []
+    for polygon, world_from_board in outlines:
+        on_board = inside_polygon(q, polygon)
+        centers, dirs = camera.rays(q[on_board])
+        normal = world_from_board.R[:, 2]
+        p, _ = intersect_plane(centers, dirs, plane_from(normal, normal @ world_from_board.t))
+        points.append(p[np.all(np.isfinite(p), axis=1)])
+    return np.concatenate(points)
+
+
+def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], color: str,
+                                 rng: np.random.Generator) -> tuple[LightPlaneFit, list[str]]:
+    """The light plane of one camera's laser from its laser-on images of the target.
+
+    Parameters
+    ----------
+    camera : Camera
+        Calibrated.
+    target : Target
+    poses : list of LightPlanePose
+        Images whose target pose is known.
+    color : {"grey", "red", "green", "blue"}
+        Laser colour.
+    rng : numpy.random.Generator
+        For the robust fit.
+
+    Returns
+    -------
+    fit : LightPlaneFit
+    skipped : list of str
+        One line per image left out (no stripe on the target).
+
+    Raises
+    ------
+    InputError
+        An image of the wrong size, no stripe on the target in any image (with the colour the
+        images do show, when another colour finds it), fewer than 2 usable poses, all poses in
+        one plane.
+    """
+    from scanrig.io.session import read_image
+
+    points, names, skipped, first = [], [], [], None
+    for pose in poses:
+        image = _read_sized(pose.image_path, camera, read_image)
+        dark = None if pose.dark_path is None else _read_sized(pose.dark_path, camera, read_image)
+        if dark is not None and dark.shape != image.shape:
+            raise FileFormatError(pose.dark_path, f"laser-off image is {dark.shape} but its laser-on image "
+                                                  f"{pose.image_path.name} is {image.shape}")
+        first = first or (pose, image, dark)
+        p = stripe_points(camera, target, pose.world_from_target, image, dark, color)
+        if len(p) < MIN_POSE_POINTS:
+            skipped.append(f"{pose.image_path}: no laser stripe on the target ({len(p)} points), skipped")
+        else:
+            points.append(p)
+            names.append(pose.name)
+    folder = poses[0].image_path.parent if poses else Path("light_plane") / camera.name
+    if not points:
+        hint = "" if first is None else _colour_hint(camera, target, color, *first)
+        raise InputError(f"{folder}: no laser stripe found on the target in any of {len(poses)} image(s) with "
+                         f"laser colour {color!r}{hint}")
+    if len(points) < 2:
+        raise InputError(f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
+                         f"at least 2 are needed (6 or more at different distances and tilts)")
+    return fit_light_plane(points, rng, names), skipped
+
+
+def _read_sized(path: Path, camera, read_image) -> np.ndarray:
+    image = read_image(path)
+    if (image.shape[1], image.shape[0]) != (camera.width, camera.height):
+        raise FileFormatError(path, f"image is {image.shape[1]}x{image.shape[0]} but camera {camera.name!r} "
+                                    f"is {camera.width}x{camera.height}")
+    return image
+
+
+def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
+    """``"; the images show a red stripe: use --color red ..."`` when another colour finds it."""
+    if image.ndim != 3:
+        return ""
+    found = {other: len(stripe_points(camera, target, pose.world_from_target, image, dark, other))
+             for other in ("red", "green", "blue") if other != color}
+    best = max(found, key=found.get)
+    if found[best] < MIN_POSE_POINTS:
+        return ""
+    return f"; the images show a {best} stripe: use --color {best} (or laser_color = {best!r} in session.toml)"

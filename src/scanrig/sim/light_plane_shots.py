@@ -1,0 +1,162 @@
+"""Light-plane shots: a fixed line laser on the calibration target at several poses, rendered.
+
+The classic single-camera head (Ciclop, Horus, FabScan): a line laser mounted ``baseline_m`` to the
+camera's right, its sheet containing the camera's vertical (y) axis and crossing the optical axis
+``crossing_m`` in front of the lens, so the stripe is a near-vertical line in the image. The
+printed target is placed across the sheet at distances of 0.3-0.6 m (farther when the board would
+not fit the image at 0.3 m), tilted 15-30 degrees about the camera's x, y or a diagonal axis in
+turn. Each pose is written twice with the same stem: ``calibration/<camera>/<stem>.png`` with the
+laser off and ``light_plane/<camera>/<stem>.png`` with it on; the true sheet goes to
+``truth/light_plane.toml``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from scanrig.errors import InputError
+from scanrig.geometry import RigidTransform
+from scanrig.io.atomic import write_text_atomic
+from scanrig.io.session import write_image
+from scanrig.sim.calibration_shots import calibration_sensor, target_scene
+from scanrig.sim.laser import BeamPose, trace_laser
+from scanrig.sim.pixel_rays import PixelRayTable
+from scanrig.sim.render import CameraView
+
+#: Laser to the camera's right, metres, and where its sheet crosses the optical axis.
+BASELINE_M = 0.12
+CROSSING_M = 0.45
+#: Target distances from the camera, metres (raised together when the board does not fit).
+DISTANCE_RANGE_M = (0.3, 0.6)
+#: Largest share of the image's width or height the face-on board may cover.
+FILL = 0.85
+#: Tilt of the target between poses, degrees.
+TILT_RANGE_DEG = (15.0, 30.0)
+#: Stems of the shots: ``lp00``, ``lp01`` ...
+STEM_PREFIX = "lp"
+
+
+def laser_sheet(camera, baseline_m: float = BASELINE_M, crossing_m: float = CROSSING_M) -> BeamPose:
+    """The fixed sheet of a line laser beside ``camera`` (world frame)."""
+    world_from_cam = camera.cam_from_world.inverse()
+    origin = world_from_cam.apply(np.array([[baseline_m, 0.0, 0.0]]))[0]
+    aim = world_from_cam.apply(np.array([[0.0, 0.0, crossing_m]]))[0]
+    return BeamPose.from_any(BeamPose(origin, aim - origin, world_from_cam.R[:, 1]))
+
+
+def sheet_plane(beam: BeamPose) -> tuple[np.ndarray, float]:
+    """The plane ``normal · x = offset`` of a sheet (unit normal, metres)."""
+    normal = np.cross(beam.direction, beam.fan_axis)
+    normal /= np.linalg.norm(normal)
+    return normal, float(normal @ beam.origin)
+
+
+def shot_poses(camera, target, beam: BeamPose, n_shots: int, rng: np.random.Generator) -> list[RigidTransform]:
+    """``world_from_target`` of ``n_shots`` poses of a planar target across the sheet.
+
+    Distances spread evenly over :data:`DISTANCE_RANGE_M` (in random order), tilts of
+    :data:`TILT_RANGE_DEG` about the camera's x, y and diagonal axes in turn with random signs,
+    the board's centre on the sheet at the optical axis' height (within ±20 mm), its print upright
+    in the image within ±10 degrees.
+
+    Raises
+    ------
+    InputError
+        If the target is not planar or ``n_shots`` < 2.
+    """
+    if not target.is_planar or len(target.boards) != 1:
+        raise InputError(f"light-plane shots need a planar target (chessboard or charuco), got {target.kind!r}")
+    if n_shots < 2:
+        raise InputError(f"light-plane shots need at least 2 poses, got {n_shots}")
+    board = target.boards[0]
+    w, h = board.size_m
+    fit_m = max(camera.params[0] * w / camera.width, camera.params[1] * h / camera.height) / FILL
+    near = max(DISTANCE_RANGE_M[0], fit_m)
+    distances = rng.permutation(np.linspace(near, near + np.ptp(DISTANCE_RANGE_M), n_shots))
+    world_from_cam = camera.cam_from_world.inverse()
+    normal_cam = camera.cam_from_world.R @ sheet_plane(beam)[0]
+    offset_cam = sheet_plane(beam)[1] - sheet_plane(beam)[0] @ world_from_cam.t
+    centre_board = np.array([w / 2, h / 2, 0.0])
+    centre_target = board.target_from_board.apply(centre_board[None])[0]
+    axes = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]) / np.array([[1.0], [1.0], [np.sqrt(2)]])
+    poses = []
+    for k, z in enumerate(distances):
+        tilt = np.radians(rng.uniform(*TILT_RANGE_DEG)) * rng.choice([-1.0, 1.0])
+        spin = np.radians(rng.uniform(-10.0, 10.0))
+        R_cam = (Rotation.from_rotvec(tilt * axes[k % 3]) * Rotation.from_rotvec([0.0, 0.0, spin])).as_matrix()
+        y = rng.uniform(-0.02, 0.02)
+        x = (offset_cam - normal_cam[1] * y - normal_cam[2] * z) / normal_cam[0]
+        R_board = world_from_cam.R @ R_cam
+        R = R_board @ board.target_from_board.R.T
+        t = world_from_cam.apply(np.array([[x, y, z]]))[0] - R @ centre_target
+        poses.append(RigidTransform(R, t))
+    return poses
+
+
+def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.random.Generator,
+                            camera_name: str | None = None, workers: int | None = None, progress=None) -> list[str]:
+    """Render light-plane shots of one camera; write images and ``truth/light_plane.toml``.
+
+    Parameters
+    ----------
+    out : Path
+        Session folder.
+    room : Scene
+        Lighting, sensor and laser optics (its objects are not rendered).
+    rig : Rig
+    target : Target
+        Planar; the session's ``target.toml``.
+    n_shots : int
+    rng : numpy.random.Generator
+        Poses, then one spawned generator per shot for its noise and speckle.
+    camera_name : str, optional
+        The camera with the laser (default: the rig's first).
+    workers : int, optional
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    list of str
+        The stems written.
+    """
+    import tomli_w
+
+    from scanrig.sim.parallel import run_indexed
+
+    camera = rig[camera_name or rig.names[0]]
+    beam = laser_sheet(camera)
+    poses = shot_poses(camera, target, beam, n_shots, rng)
+    shot_rngs = rng.spawn(n_shots)
+    stems = [f"{STEM_PREFIX}{i:02d}" for i in range(n_shots)]
+    sensor = calibration_sensor(room)
+    table = PixelRayTable(camera)
+    table.xy  # noqa: B018 - solve the camera's rays once, before forking
+    for folder in (out / "calibration" / camera.name, out / "light_plane" / camera.name, out / "truth"):
+        folder.mkdir(parents=True, exist_ok=True)
+
+    def render_shot(i: int) -> None:
+        scene = target_scene(target, poses[i], room)
+        view = CameraView(camera, scene, sensor, ray_table=table)
+        off_rng, on_rng = shot_rngs[i].spawn(2)
+        write_image(out / "calibration" / camera.name / f"{stems[i]}.png", sensor.expose(view.background_e, off_rng))
+        laser_e = view.background_e.copy()
+        window = view.laser_window(trace_laser(beam, room.laser, scene), on_rng)
+        if window is not None:
+            laser_e[window.slices] += window.electrons
+        write_image(out / "light_plane" / camera.name / f"{stems[i]}.png", sensor.expose(laser_e, on_rng))
+
+    report = (lambda done: progress("light plane", done, n_shots)) if progress else None
+    run_indexed(render_shot, n_shots, workers, report)
+    normal, offset = sheet_plane(beam)
+    doc = {"units": "m", "camera": camera.name, "normal": normal.tolist(), "offset_m": offset,
+           "laser_origin_m": beam.origin.tolist(), "laser_direction": beam.direction.tolist(),
+           "fan_axis": beam.fan_axis.tolist(), "shots": stems,
+           "world_from_target": [np.vstack([np.c_[p.R, p.t], [0, 0, 0, 1]]).tolist() for p in poses]}
+    write_text_atomic(out / "truth" / "light_plane.toml",
+                      "# true laser sheet of the light-plane shots: normal . x = offset_m (scene world frame)\n"
+                      + tomli_w.dumps(doc))
+    return stems

@@ -1,0 +1,121 @@
+"""`scanrig calibrate SESSION --light-plane` on a rendered single-camera session with a known sheet."""
+
+import shutil
+import tomllib
+
+import cv2
+import numpy as np
+import pytest
+
+from scanrig.cli.main import main
+from scanrig.geometry import Camera, Rig
+from scanrig.io.rig_file import load_rig
+from scanrig.reconstruct.light_plane import load_light_plane
+from scanrig.sim.calibration_shots import default_target
+from scanrig.sim.library import load_scene
+from scanrig.sim.light_plane_shots import write_light_plane_shots
+from scanrig.targets import save_target
+
+#: The task's accuracy for >= 6 poses at 0.3-0.6 m.
+NORMAL_TOL_DEG = 0.05
+OFFSET_TOL_M = 5e-5
+#: Files a light-plane calibration writes; none may exist after a failed run.
+OUTPUTS = ("rig.toml", "light_plane.toml", "calibration_report")
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """8 poses of the chessboard, an 800 x 640 camera with f = 600 px, rendered once (~2 s)."""
+    out = tmp_path_factory.mktemp("lp") / "s"
+    out.mkdir()
+    K = np.array([[600.0, 0, 399.5], [0, 600.0, 319.5], [0, 0, 1]])
+    cam = Camera.from_opencv("cam0", K, np.array([-0.1, 0.05, 0, 0, 0]), np.eye(3), np.zeros(3), 800, 640)
+    target = default_target("chessboard")
+    save_target(target, out / "target.toml")
+    write_light_plane_shots(out, load_scene("default"), Rig([cam]), target, 8, np.random.default_rng(3), workers=1)
+    return out
+
+
+def _copy(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _plane_in_camera(root):
+    plane, name = load_light_plane(root / "light_plane.toml")
+    cam_from_world = load_rig(root / "rig.toml")[name].cam_from_world
+    normal = cam_from_world.R @ plane.normal
+    return normal, plane.offset + normal @ cam_from_world.t
+
+
+@pytest.mark.slow
+def test_light_plane_end_to_end(session, tmp_path, capsys):
+    root = _copy(session, tmp_path / "s")
+    cv2.imwrite(str(root / "light_plane" / "cam0" / "zz_blank.png"), np.full((640, 800), 20, np.uint8))
+    assert main(["calibrate", str(root), "--light-plane", "--no-cross-validate"]) == 0
+    out = capsys.readouterr().out
+    assert "light plane of cam0 (world frame of rig.toml)" in out
+    assert f"skipped: {root / 'light_plane' / 'cam0' / 'zz_blank.png'}: the target was not found, skipped" in out
+    assert "warning" not in out.split("light plane of cam0")[1]
+    truth = tomllib.loads((root / "truth" / "light_plane.toml").read_text())
+    normal, offset = _plane_in_camera(root)  # the true camera is at the scene's origin
+    n_true = np.array(truth["normal"])
+    sign = np.sign(normal @ n_true)
+    assert np.degrees(np.arccos(min(1.0, abs(normal @ n_true)))) < NORMAL_TOL_DEG
+    assert abs(sign * offset - truth["offset_m"]) < OFFSET_TOL_M
+    report = root / "calibration_report"
+    assert (report / "light_plane_cam0.png").stat().st_size > 0
+    assert (report / "light_plane_summary.txt").read_text().startswith("light plane of cam0")
+    for stem in [f"lp{i:02d}" for i in range(8)]:
+        assert f"  {stem} " in out
+
+
+def _fails(root, capsys, args, message):
+    assert main(["calibrate", str(root), "--light-plane", "--no-cross-validate", "--no-plots", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {message}"]
+    assert not any((root / name).exists() for name in OUTPUTS)
+
+
+@pytest.mark.slow
+def test_light_plane_bad_input(session, tmp_path, capsys):
+    root = _copy(session, tmp_path / "a")
+    _fails(root, capsys, ["--color", "purple"], "--color must be one of ['grey', 'red', 'green', 'blue'], got 'purple'")
+    # one pose only
+    for path in sorted((root / "light_plane" / "cam0").iterdir())[1:]:
+        path.unlink()
+    folder = root / "light_plane" / "cam0"
+    _fails(root, capsys, [], f"{folder}: the stripe on the target was found in 1 usable pose(s); at least 2 are "
+                             f"needed (6 or more at different distances and tilts)")
+    # the same pose three times (no laser-off twins: each located in its own image)
+    for stem in ("x1", "x2"):
+        shutil.copy(folder / "lp00.png", folder / f"{stem}.png")
+    _fails(root, capsys, [], "the stripe points of all 3 poses lie along one line (the target in one plane at "
+                             "every pose?): move the target to other distances and tilts between shots")
+    # no stripe: the laser-off images in place of the laser-on ones
+    root = _copy(session, tmp_path / "b")
+    for path in (root / "light_plane" / "cam0").iterdir():
+        shutil.copy(root / "calibration" / "cam0" / path.name, path)
+    _fails(root, capsys, [], f"{root / 'light_plane' / 'cam0'}: no laser stripe found on the target in any of 8 "
+                             f"image(s) with laser colour 'grey'")
+    shutil.rmtree(root / "light_plane")
+    _fails(root, capsys, [], f"{root / 'light_plane'}: no light-plane images (light_plane/<camera>/<shot>.png: the "
+                             f"target with the laser stripe across it)")
+
+
+@pytest.mark.slow
+def test_light_plane_wrong_colour_names_the_right_one(session, tmp_path, capsys):
+    """A red laser: the stripe only in the red channel; --color green finds nothing and says red."""
+    root = _copy(session, tmp_path / "c")
+    for path in (root / "light_plane" / "cam0").iterdir():
+        on = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        off_path = root / "calibration" / "cam0" / path.name
+        off = cv2.imread(str(off_path), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(path), np.dstack([off, off, on]))  # BGR on disk: the stripe in red
+        cv2.imwrite(str(off_path), np.dstack([off, off, off]))
+    folder = root / "light_plane" / "cam0"
+    _fails(root, capsys, ["--color", "green"],
+           f"{folder}: no laser stripe found on the target in any of 8 image(s) with laser colour 'green'; the "
+           f"images show a red stripe: use --color red (or laser_color = 'red' in session.toml)")
+    assert main(["calibrate", str(root), "--light-plane", "--color", "red", "--no-cross-validate", "--no-plots"]) == 0
+    assert "laser_color = \"red\"" in (root / "light_plane.toml").read_text()
