@@ -11,13 +11,27 @@ from scanrig.io.object_poses import read_object_poses
 from scanrig.reconstruct.evaluate import load_truth_surface
 from scanrig.reconstruct.light_plane import load_light_plane
 from scanrig.reconstruct.points import read_points
+from scanrig.geometry import Rig
+from scanrig.io.session import read_image
+from scanrig.sim.calibration_shots import CALIBRATION_SUPERSAMPLING, calibration_sensor, write_calibration
 from scanrig.sim.library import load_scene
-from scanrig.sim.turntable import turntable_rig
+from scanrig.sim.turntable import LASER_FILL, turntable_rig, write_light_plane_shots
 
 #: Frames of the test scan (one every 90 degrees: a wrong object-frame mapping moves points by cm).
 N_FRAMES = 4
 #: Fewest points per frame: the object spans ~200 of the 480 image rows at half scale.
 MIN_POINTS_PER_FRAME = 150
+#: Half the cube's edge, metres (scanrig.sim.calibration_shots.default_target("cube")).
+CUBE_HALF_EDGE_M = 0.1
+#: Pixels brighter than this share of the stripe's peak are taken as the stripe: they lie within
+#: about one PSF sigma (0.6 px) of its centre line plus the sheet's half-thickness (~0.4 px).
+STRIPE_SHARE = 0.5
+#: Their rays meet the true sheet within ~1.5 px of the centre line: at 0.3-0.4 m with fx 725 px a
+#: pixel is 0.4-0.55 mm, stretched by 1/sin(30 deg) along the sheet: 1.5 px is at most 1.7 mm.
+STRIPE_ON_CUBE_M = 1.7e-3
+#: Fewest such pixels: the sheet crosses the cube from top to bottom (~200 px at half scale), half of
+#: it on white paper (the rest on black squares and markers, too dark to pass STRIPE_SHARE).
+MIN_STRIPE_PIXELS = 60
 #: Largest distance to the true surface in predicted sigmas: with ~1200 points, a 4-sigma excess
 #: has a probability of ~0.1 under honest Gaussian sigmas.
 MAX_DISTANCE_SIGMAS = 4.0
@@ -80,3 +94,29 @@ def test_a_flat_calibration_target_is_refused_before_rendering(tmp_path, capsys)
         "error: a turntable session is calibrated with the cube standing on the turntable for shot 000 (the world "
         "frame); target kind 'chessboard' cannot stand there in view, use 'cube'"]
     assert not (tmp_path / "s").exists()
+
+
+def test_light_plane_shot_shows_the_true_sheet_on_the_cube(tmp_path):
+    """Shot 000 (the cube at the world origin, on the axis) with the laser on: the stripe's pixels are
+    where the true sheet cuts the cube, and the stripe peaks LASER_FILL of the full well above paper."""
+    scene = load_scene(_half_scale_scene(tmp_path))
+    rig = turntable_rig(scene)
+    rng = np.random.default_rng(12)
+    (tmp_path / "truth").mkdir()
+    shots = write_calibration(tmp_path, scene, Rig([rig.camera]), 1, "cube", rng, workers=1)
+    assert list(shots) == ["000"] and np.array_equal(shots["000"].as_matrix(), np.eye(4))
+    write_light_plane_shots(tmp_path, scene, rig, shots, rng, workers=1)
+    off = read_image(tmp_path / "calibration" / "cam0" / "000.png").astype(float)
+    on = read_image(tmp_path / "light_plane" / "cam0" / "000.png").astype(float)
+    sensor = calibration_sensor(scene)
+    assert sensor.supersampling == CALIBRATION_SUPERSAMPLING
+    laser_dn = on - off
+    full_scale_dn = sensor.full_well_e / sensor.gain_e_per_dn
+    # the peak pixel: LASER_FILL of the full well, less what pixel integration spreads to its neighbours
+    assert 0.5 * LASER_FILL * full_scale_dn < laser_dn.max() <= (LASER_FILL + 0.05) * full_scale_dn
+    v, u = np.nonzero(laser_dn > STRIPE_SHARE * laser_dn.max())
+    centers, dirs = rig.camera.rays(np.c_[u, v].astype(float))
+    normal, offset = rig.light_plane()
+    p = centers + ((offset - centers @ normal) / (dirs @ normal))[:, None] * dirs
+    on_cube = np.abs(np.abs(p).max(axis=1) - CUBE_HALF_EDGE_M)
+    assert len(p) >= MIN_STRIPE_PIXELS and on_cube.max() < STRIPE_ON_CUBE_M
