@@ -120,3 +120,10 @@ def test_light_plane_shot_shows_the_true_sheet_on_the_cube(tmp_path):
     p = centers + ((offset - centers @ normal) / (dirs @ normal))[:, None] * dirs
     on_cube = np.abs(np.abs(p).max(axis=1) - CUBE_HALF_EDGE_M)
     assert len(p) >= MIN_STRIPE_PIXELS and on_cube.max() < STRIPE_ON_CUBE_M
+
+
+def test_light_plane_shots_option_is_for_the_arc_rig(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "s"), "--rig", "turntable", "--light-plane-shots", "4"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "error: --light-plane-shots is for --rig arc; --rig turntable photographs every calibration pose of the "
+        "cube with the laser on as well (light_plane/cam0/<shot>)"]

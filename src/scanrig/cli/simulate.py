@@ -30,7 +30,8 @@ def command(
     Writes scan/<camera>/<frame>.png, calibration/<camera>/<shot>.png, target.toml, session.toml
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
     identical files. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
-    fixed laser sheet, scan/object_poses.csv, truth/light_plane.toml and meshes in the object frame.
+    fixed laser sheet, scan/object_poses.csv, light_plane/cam0/<shot>.png (every calibration pose
+    with the laser on), truth/light_plane.toml and meshes in the object frame.
     A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
     images, .jpg when its jpeg_quality is set.
 
@@ -51,6 +52,9 @@ def command(
         raise InputError(f"--mode must be 'spot' or 'stripe', got {mode!r}")
     if rig not in ("arc", "turntable"):
         raise InputError(f"--rig must be 'arc' or 'turntable', got {rig!r}")
+    if rig == "turntable" and light_plane_shots:
+        raise InputError("--light-plane-shots is for --rig arc; --rig turntable photographs every calibration "
+                         "pose of the cube with the laser on as well (light_plane/cam0/<shot>)")
     provenance = {"seed": seed, "command": shlex.join(["scanrig", *sys.argv[1:]])}
     with Progress(TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeRemainingColumn()) as bar:
@@ -72,5 +76,5 @@ def command(
             simulate_session(out, scene=scene, n_cameras=cameras, mode=mode, n_frames=frames,
                              rng=np.random.default_rng(seed), with_calibration=calibration, n_shots=shots,
                              target_kind=target, light_plane_shots=light_plane_shots, workers=workers,
-                         progress=progress, provenance=provenance)
+                             progress=progress, provenance=provenance)
     typer.echo(f"wrote {out} ({frames} frames, {cameras} cameras, seed {seed})")
