@@ -26,6 +26,8 @@ from scanrig.laser.image import ColourFrames, estimate_noise
 
 #: Parameter order of the colour model.
 PARAMS = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
+#: Largest amplitude fitted, in units of the clip level (a laser 100 times past full scale).
+_MAX_OVEREXPOSURE = 100.0
 #: Widths tried for the start, pixels.
 _START_WIDTHS = np.array([0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0])
 
@@ -87,6 +89,7 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     lower = np.full(8, -np.inf)
     upper = np.full(8, np.inf)
     lower[:2], upper[:2] = (-half, MIN_WIDTH_PX), (half, half / 2.0)
+    lower[2:5], upper[2:5] = -_MAX_OVEREXPOSURE * colour.clip_level, _MAX_OVEREXPOSURE * colour.clip_level
     lower[2 + laser] = MIN_PEAK_DN
     whitened = y_minor / np.repeat(noise, offs.size)[:, None]
     res = fit_batch(_model(offs.astype(float), noise), whitened, mask, p0, lower, upper, minor=True)
@@ -139,9 +142,10 @@ def _start(y: np.ndarray, usable: np.ndarray, offs: np.ndarray, noise: np.ndarra
     s_w, s_g, s_y = w.sum(-1), (w * g).sum(-1), (w * yy).sum(-1)  # (n, 3, k)
     s_gg, s_gy = (w * g * g).sum(-1), (w * g * yy).sum(-1)
     det = s_w * s_gg - s_g**2
-    with np.errstate(divide="ignore", invalid="ignore"):  # a channel without usable pixels: 0
-        amp = np.nan_to_num((s_w * s_gy - s_g * s_y) / det)
-        bg = np.nan_to_num((s_y - amp * s_g) / s_w)
+    solvable = det > 1e-9 * np.maximum(s_w * s_gg, 1e-300)  # else the channel has no usable flank: 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        amp = np.where(solvable, (s_w * s_gy - s_g * s_y) / np.where(solvable, det, 1.0), 0.0)
+        bg = np.where(s_w > 0, (s_y - amp * s_g) / np.maximum(s_w, 1e-300), 0.0)
     resid = (w * (yy - amp[..., None] * g - bg[..., None]) ** 2).sum(-1) / noise[None, :, None] ** 2
     best = np.argmin(resid.sum(axis=1), axis=1)  # (n,)
     pick = np.arange(y.shape[0])

@@ -266,7 +266,8 @@ def suppress_on_lines(line: np.ndarray, pos: np.ndarray, score: np.ndarray, radi
     return keep
 
 
-def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach: np.ndarray) -> np.ndarray:
+def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
+                    reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Prominence of candidates along their scan lines (axis 1 of ``signal``), DN of the 3 × 3 box sum.
 
     The box sum at ``pos`` minus the higher of the two lowest box sums on its left and on its
@@ -282,10 +283,12 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
 
     Returns
     -------
-    (n,) float32 array
+    prominence : (n,) float32 array
+    box : (n,) float32 array
+        The box sum at each candidate.
     """
     if line.size == 0:
-        return np.zeros(0, np.float32)
+        return np.zeros(0, np.float32), np.zeros(0, np.float32)
     n_lines, n_pos = signal.shape
     far = int(reach.max())
     offs = np.arange(-far - 1, far + 2)
@@ -297,7 +300,7 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
     box_masked = np.where(beyond, np.float32(np.inf), box)
     left = box_masked[:, :far].min(axis=1)
     right = box_masked[:, far + 1 :].min(axis=1)
-    return box[:, far] - np.maximum(left, right)
+    return box[:, far] - np.maximum(left, right), box[:, far]
 
 
 def _empty() -> Candidates:

@@ -1,0 +1,77 @@
+"""Real frames of a red line laser (a Ciclop scanner's webcam, tests/data/ciclop-laser-stripes,
+CC BY-SA 4.0): the stripe on a white bust, and two stripes on the chessboard."""
+
+import cv2
+import numpy as np
+import pytest
+
+import scanrig
+from scanrig.io.session import read_image
+from tests.data_paths import real_data
+
+CICLOP = real_data("ciclop-laser-stripes")
+#: The laser is on the bust between these rows (above: its top; below: the turntable).
+BUST_ROWS = (40, 1115)
+#: Rows where the laser adds this much to the red channel (laser on minus off) carry the stripe.
+STRIPE_DN = 60
+#: A rank-0 centre this close to the row's strongest red difference is on the stripe, px.
+ON_STRIPE_PX = 6.0
+
+
+@pytest.fixture(scope="module")
+def bust():
+    folder = CICLOP / "laser_on_object"
+    return read_image(folder / "laser.png"), read_image(folder / "laser_background.png")
+
+
+@pytest.mark.parametrize("use_dark", [False, True])
+def test_rank0_is_on_the_bust_stripe(bust, use_dark):
+    on, off = bust
+    t = scanrig.detect_stripe(on, color="red", dark=off if use_dark else None)
+    u, v, line, rank = (t[k].to_numpy() for k in ("u", "v", "line", "rank"))
+    best = (rank == 0) & (v == line)
+    found = np.full(on.shape[0], np.nan)
+    found[line[best]] = u[best]
+    added = on[:, :, 0].astype(int) - off[:, :, 0]
+    rows = np.arange(on.shape[0])
+    rows = rows[(added.max(axis=1) > STRIPE_DN) & (rows > BUST_ROWS[0]) & (rows < BUST_ROWS[1])]
+    assert rows.size > 1000
+    on_stripe = np.abs(found[rows] - np.argmax(added[rows], axis=1)) < ON_STRIPE_PX
+    assert on_stripe.mean() >= 0.99
+
+
+def test_the_two_stripes_on_the_board_are_straight_to_their_sigma():
+    """The board is flat, so each laser's centres, undistorted, lie on a line. Straightness is
+    measured against the centres' own σ (the stripes are dim on black squares: σ ≈ 0.3 px),
+    with the intrinsics of the data set's PROVENANCE.md."""
+    folder = CICLOP / "laser_on_pattern"
+    on, off = read_image(folder / "laser-0-255-255-8-x.png"), read_image(folder / "laser-background-0-255-255-8-x.png")
+    found, corners = cv2.findChessboardCorners(cv2.cvtColor(read_image(folder / "pattern.png"), cv2.COLOR_RGB2GRAY),
+                                               (11, 6))
+    assert found
+    grid = corners.reshape(6, 11, 2)
+    outline = cv2.convexHull(np.concatenate([2 * grid[0] - grid[1], 2 * grid[-1] - grid[-2],
+                                             2 * grid[:, 0] - grid[:, 1], 2 * grid[:, -1] - grid[:, -2]]))
+    camera = np.array([[1429.665, 0, 478.030], [0, 1430.394, 642.597], [0, 0, 1]])
+    distortion = np.array([0.02719, -0.23098, -0.00087, -0.00007, 0.50889])
+    t = scanrig.detect_stripe(on, color="red", dark=off)
+    u, v, line, rank, sigma = (t[k].to_numpy() for k in ("u", "v", "line", "rank", "sigma_px"))
+    two = (rank <= 1) & (v == line)  # two lasers: the two most prominent peaks of a row
+    q = np.c_[u, v][two]
+    inside = np.array([cv2.pointPolygonTest(outline, (float(a), float(b)), False) >= 0 for a, b in q])
+    q, sigma = q[inside], sigma[two][inside]
+    flat = cv2.undistortPoints(q[:, None], camera, distortion, P=camera)[:, 0]
+    for lo, hi in ((250, 400), (560, 720)):  # the two lasers' columns
+        near = (flat[:, 0] > lo) & (flat[:, 0] < hi)
+        p, s = flat[near], sigma[near]
+        assert near.sum() > 450
+        keep = np.ones(len(p), bool)
+        for _ in range(5):  # a weighted line, iterated with a 5-MAD gate
+            w = 1.0 / s[keep]
+            a = np.c_[np.ones(keep.sum()), p[keep, 1]] * w[:, None]
+            coef = np.linalg.lstsq(a, p[keep, 0] * w, rcond=None)[0]
+            residual = p[:, 0] - coef[0] - coef[1] * p[:, 1]
+            keep = np.abs(residual) < 5 * 1.4826 * np.median(np.abs(residual[keep]))
+        assert keep.mean() > 0.8
+        spread = 1.4826 * np.median(np.abs(residual[keep] / s[keep]))
+        assert 0.6 <= spread <= 1.4
