@@ -30,7 +30,7 @@ def malformed_manifest(s):
 #: case -> (setup on the good session, argv with {s} for the session, expected error line)
 CASES = {
     "unknown built-in scene": (no_change, ["simulate", "{s}/out", "--scene", "nope"],
-                               r"unknown scene 'nope'; built-in scenes are \['default', .*\] \(or give a .toml file\)"),
+                               r"unknown scene 'nope'; built-in scenes are \[.*'default'.*\] \(or give a .toml file\)"),
     "scene file missing": (no_change, SIMULATE, r"scene.toml: file not found"),
     "scene without objects": (scene('name = "x"\n'), SIMULATE, r"scene.toml: top level: missing field 'objects'"),
     "scene object without material": (scene(SPHERE.replace('material = "paint"\n', "")), SIMULATE,
