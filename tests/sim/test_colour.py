@@ -320,3 +320,32 @@ def test_colour_stripe_session_is_rgb_with_a_clipped_red_band_and_green_blue_pea
         # R is clipped over a wider band than G's peak
         g_peak = profile[..., 1] >= profile[..., 1].max(axis=1, keepdims=True) - 5
         assert np.median(r_clipped.sum(axis=1)) > np.median(g_peak.sum(axis=1))
+
+
+def test_fast_colour_frames_have_the_full_frame_mean_and_noise(rng):
+    """Noisy frames of the fast path (per-channel noise fields, halo-grown laser window) against the
+    full-frame model: per pixel, z = (mean of N frames - model mean) / model sd of that mean. A spot
+    has a small window, so much of its halo falls in the ring the halo adds around it."""
+    scene, _, view, _ = _colour_view()
+    scene = replace(scene, colour=replace(scene.colour, bayer=False, jpeg_quality=None))
+    view = CameraView(view.camera, scene, rng=rng)
+    spot = raster_poses(scene.laser, scene.center_m, scene.radius_m, 9, "spot")[4]
+    trace = trace_laser(spot, scene.laser, scene)
+    window = view.laser_window(trace)
+    laser = np.zeros_like(view.background_e)
+    laser[window.slices] = window.electrons
+    electrons = channel_electrons(view.background_e, laser, scene.colour).astype(np.float64)
+    sensor, n_frames = scene.sensor, 12
+    frames = np.stack([view.sensor_frame(trace, rng) for _ in range(n_frames)]).astype(np.float64)
+    model_mean = electrons / sensor.gain_e_per_dn + sensor.black_level_dn
+    model_sd = np.sqrt(sensor.noise_var_dn2(electrons) / n_frames)
+    unclipped = model_mean + 5 * np.sqrt(sensor.noise_var_dn2(electrons)) < sensor.max_dn
+    z = (frames.mean(axis=0) - model_mean) / model_sd
+    ring = np.zeros(electrons.shape, dtype=bool)
+    ring[window.padded(scene.colour.halo_pad_px, laser.shape).slices] = True
+    ring[window.slices] = False
+    for part in (unclipped, unclipped & ring):
+        assert part.sum() > 1000
+        # z of n independent pixels: mean within 5 / sqrt(n), variance within NOISE_REL_TOL of 1
+        assert abs(z[part].mean()) < 5 / np.sqrt(part.sum())
+        assert abs(z[part].var() - 1) < NOISE_REL_TOL
