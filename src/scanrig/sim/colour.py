@@ -15,6 +15,10 @@ Image formation, per frame (all in electrons until the sensor's conversion):
 4. Optionally an RGGB mosaic (each pixel keeps one channel) demosaiced by OpenCV, as a real
    colour camera delivers it.
 5. Optionally a JPEG round trip with 4:2:0 chroma subsampling (colour at half resolution).
+
+Sessions render colour frames through the same steps on the renderer's fast path
+(:mod:`scanrig.sim.render`): :class:`ColourNoise` gives each channel's background noise, and
+:func:`write_frame` stores a frame once, as ``.jpg`` or lossless ``.png``.
 """
 
 from __future__ import annotations
