@@ -1,0 +1,145 @@
+"""Over-exposed red stripes in colour frames, rendered and real: accuracy, honesty of sigma, speed.
+
+Run ``python benchmarks/bench_colour_stripes.py`` (about a minute; ``--seeds N`` for more).
+
+Rendered set (``tests/laser/colour_synth.py``): white paper with 40 printed black dots, a red line
+laser 8 × past full scale on paper, crosstalk 7 % / 5 % into green / blue, a sub-surface halo
+(30 % of the light, 3 px), Bayer demosaicing and JPEG quality 90 (4:2:0); 640 × 480 for accuracy,
+1920 × 1080 for speed. Next to scanrig, in the same run, the baseline of Horus and FabScan: per
+row, the 7-pixel centre of gravity of ``red − (green + blue) / 2`` (laser-off frame subtracted
+where there is one) around the row's maximum.
+
+Real frames (``tests/data/ciclop-laser-stripes``, CC BY-SA 4.0): a Ciclop scanner's webcam, a red
+line laser on a white bust; rank 0 is counted on the stripe when within 6 px of the row's
+strongest red difference (laser on − off), on the rows where that difference exceeds 60 DN.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.data_paths import real_data  # noqa: E402
+from tests.laser.colour_synth import stripe_frames  # noqa: E402
+
+from scanrig.io.session import read_image  # noqa: E402
+from scanrig.laser.stripes import detect_stripe  # noqa: E402
+
+EDGE_ROWS = 8
+COG_HALF = 3
+
+
+def cog_rows(on: np.ndarray, off: np.ndarray | None) -> np.ndarray:
+    """Baseline: 7-pixel centre of gravity of red minus the mean of green and blue, per row."""
+    f = on.astype(np.float64)
+    signal = f[:, :, 0] - 0.5 * (f[:, :, 1] + f[:, :, 2])
+    if off is not None:
+        g = off.astype(np.float64)
+        signal -= g[:, :, 0] - 0.5 * (g[:, :, 1] + g[:, :, 2])
+    peak = np.clip(np.argmax(signal, axis=1), COG_HALF, signal.shape[1] - 1 - COG_HALF)
+    idx = peak[:, None] + np.arange(-COG_HALF, COG_HALF + 1)
+    w = np.clip(np.take_along_axis(signal, idx, axis=1), 0, None)
+    return (w * idx).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-12)
+
+
+def rank0_by_row(table, n_rows: int):
+    """Rank-0 row-scanned centre, its sigma and clip flag per row (NaN / False where none)."""
+    u, v, line, rank, sigma, clipped = (table[k].to_numpy() for k in
+                                        ("u", "v", "line", "rank", "sigma_px", "saturated"))
+    best = (rank == 0) & (v == line)
+    centre, sig, sat = np.full(n_rows, np.nan), np.full(n_rows, np.nan), np.zeros(n_rows, bool)
+    centre[line[best]], sig[line[best]], sat[line[best]] = u[best], sigma[best], clipped[best]
+    return centre, sig, sat
+
+
+def accuracy(seeds) -> None:
+    print("Rendered over-exposed red stripes, 640x480 (per laser-off setting, pooled over seeds)")
+    print(f"{'dark':6}{'rows':>7}{'<0.5px':>8}{'median':>8}{'COG7 <0.5':>11}{'COG7 med':>10}"
+          f"{'z clipped':>11}{'n':>6}{'z unclipped':>13}{'n':>5}{'cands':>7}")
+    for use_dark in (False, True):
+        err, base, z_sat, z_un, cands = [], [], [], [], []
+        for seed in seeds:
+            on, off, truth = stripe_frames(np.random.default_rng(seed))
+            dark = off if use_dark else None
+            t = detect_stripe(on, color="red", dark=dark)
+            centre, sig, sat = rank0_by_row(t, on.shape[0])
+            rows = slice(EDGE_ROWS, on.shape[0] - EDGE_ROWS)
+            e = (centre - truth)[rows]
+            good = np.abs(e) < 0.5
+            z = e / sig[rows]
+            z_sat.append(z[good & sat[rows]])
+            z_un.append(z[good & ~sat[rows]])
+            err.append(e)
+            base.append((cog_rows(on, dark) - truth)[rows])
+            cands.append(len(t))
+        e, b = np.concatenate(err), np.concatenate(base)
+        zs, zu = np.concatenate(z_sat), np.concatenate(z_un)
+
+        def spread(z):
+            return 1.4826 * np.median(np.abs(z))
+
+        print(f"{'yes' if use_dark else 'no':6}{e.size:7d}{np.mean(np.abs(e) < 0.5):8.3f}"
+              f"{np.nanmedian(np.abs(e)):8.3f}{np.mean(np.abs(b) < 0.5):11.3f}{np.median(np.abs(b)):10.3f}"
+              f"{spread(zs):11.2f}{zs.size:6d}{spread(zu):13.2f}{zu.size:5d}{np.mean(cands):7.0f}")
+    print("  z = robust spread (MAD) of error / reported sigma over rows within 0.5 px; target 0.7-1.4")
+
+
+def speed(reps: int) -> None:
+    cv2.setNumThreads(1)
+    on, off, _ = stripe_frames(np.random.default_rng(0), shape=(1080, 1920))
+    print(f"\nSpeed, one 1920x1080 RGB frame, one core, ms (median and best of {reps}; "
+          f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+    for name, fn in (("detect_stripe", lambda: detect_stripe(on, color="red")),
+                     ("detect_stripe, laser-off frame", lambda: detect_stripe(on, color="red", dark=off)),
+                     ("COG7 baseline", lambda: cog_rows(on, None))):
+        times = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            fn()
+            times.append(1e3 * (time.perf_counter() - t0))
+        print(f"  {name:32}{np.median(times):9.1f}{min(times):9.1f}")
+
+
+def ciclop() -> None:
+    folder = real_data("ciclop-laser-stripes") / "laser_on_object"
+    on, off = read_image(folder / "laser.png"), read_image(folder / "laser_background.png")
+    added = on[:, :, 0].astype(int) - off[:, :, 0]
+    rows = np.arange(on.shape[0])
+    rows = rows[(added.max(axis=1) > 60) & (rows > 40) & (rows < 1115)]
+    reference = np.argmax(added[rows], axis=1)
+    print(f"\nReal Ciclop frame (960x1280, red laser on a white bust), {rows.size} rows with the laser on it")
+    for use_dark in (False, True):
+        dark = off if use_dark else None
+        t0 = time.perf_counter()
+        t = detect_stripe(on, color="red", dark=dark)
+        ms = 1e3 * (time.perf_counter() - t0)
+        centre, _, _ = rank0_by_row(t, on.shape[0])
+        share = np.mean(np.abs(centre[rows] - reference) < 6.0)
+        base = np.mean(np.abs(cog_rows(on, dark)[rows] - reference) < 6.0)
+        print(f"  laser-off frame {'yes' if use_dark else 'no ':3}: rank 0 on the stripe {share:.4f}, "
+              f"COG7 {base:.4f}; {len(t)} candidates, {ms:.0f} ms")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=6, help="rendered frames per laser-off setting")
+    parser.add_argument("--reps", type=int, default=5)
+    args = parser.parse_args()
+    accuracy(range(args.seeds))
+    speed(args.reps)
+    ciclop()
+
+
+if __name__ == "__main__":
+    main()
