@@ -1,4 +1,5 @@
-"""Synthetic light-plane calibrations: a fixed laser sheet on a target at known poses, no rendering.
+"""Synthetic light-plane calibrations (a fixed laser sheet on a target at known poses, no rendering),
+and the errors of a calibrated plane against a known one.
 
 The camera sits at the world origin (world = camera frame); the laser sheet leaves a point
 ``BASELINE_M`` to the camera's right, contains the camera's y axis and crosses the optical axis at
@@ -103,3 +104,26 @@ def normalised_errors(plane, normal_true, offset_true) -> np.ndarray:
     tilt_rad = -(plane.axes @ normal_true) * np.sign(plane.normal @ normal_true)
     sigma = np.r_[plane.offset_sigma(plane.centroid[None])[0], plane.tilt_sigma_rad()]
     return np.r_[position_m, tilt_rad] / sigma
+
+
+def angle_and_offset_error(plane, normal_true, offset_true) -> tuple[float, float]:
+    """Angle between the normals (deg) and the offset error (m, with the normals aligned)."""
+    sign = np.sign(plane.normal @ normal_true)
+    return float(np.degrees(np.arccos(min(1.0, abs(plane.normal @ normal_true))))), sign * plane.offset - offset_true
+
+
+def true_plane_in_rig_world(session) -> tuple[np.ndarray, float]:
+    """A simulated session's true sheet in the world frame of its rig.toml (the target frame at
+    the calibration's reference shot, named in rig.toml's metadata): unit normal, offset (m)."""
+    import tomllib
+
+    from scanrig.reconstruct.light_plane import load_light_plane
+
+    plane, _ = load_light_plane(session / "truth" / "light_plane.toml")
+    world = tomllib.loads((session / "rig.toml").read_text())["metadata"]["world_frame"]
+    reference = world.split("'")[1]
+    rows = [line.split(",") for name in ("light_plane_poses.csv", "target_poses.csv")
+            if (session / "truth" / name).exists() for line in (session / "truth" / name).read_text().splitlines()[1:]]
+    values = np.array([row[1:] for row in rows if row[0] == reference][0], float)
+    R, t = values[:9].reshape(3, 3), values[9:]
+    return R.T @ plane.normal, plane.offset - plane.normal @ t

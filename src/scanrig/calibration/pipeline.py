@@ -28,6 +28,13 @@ MIN_PLANES_PER_CAMERA = 2
 #: Fewest shots in each half for the odd/even cross-validation.
 MIN_SHOTS_PER_HALF = 3
 REPORT_DIR = "calibration_report"
+#: :func:`locate_target`: corners beyond this many robust sigmas of reprojection error (and
+#: beyond LOCATE_MIN_GATE_PX) are left out of the pose, in at most LOCATE_ROUNDS solves.
+LOCATE_OUTLIER_SIGMAS = 5.0
+LOCATE_MIN_GATE_PX = 0.05
+LOCATE_ROUNDS = 4
+#: Median absolute deviation -> standard deviation for Gaussian errors.
+MAD_TO_SIGMA = 1.4826
 
 
 @dataclass
@@ -311,23 +318,58 @@ def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Obse
     save_rig(result.rig, session.rig_path, result.camera_info(), metadata, comments)
 
 
-def shot_pose(result: CalibrationResult, shot: str):
-    """``world_from_target`` of a calibration shot as the bundle adjustment solved it (None when the
-    shot was not solved: target not found, or the view left out)."""
+def sample_states(result: CalibrationResult, n_samples: int, rng: np.random.Generator) -> list:
+    """Calibrations drawn from the solution's covariance (intrinsics, camera and target poses).
+
+    Returns
+    -------
+    list of State
+        ``n_samples`` states (cameras and ``world_from_target`` of every shot, as
+        ``result.bundle.state``), each from ``x + L z`` with ``L Lᵀ`` the parameter covariance
+        and ``z`` standard normal.
+    """
+    from scanrig.calibration.bundle import unpack
+
+    eigval, eigvec = np.linalg.eigh(result.uncertainty.covariance)
+    root = eigvec * np.sqrt(np.maximum(eigval, 0.0))
+    draws = result.bundle.x + rng.standard_normal((n_samples, len(eigval))) @ root.T
+    return [unpack(x, result.bundle.layout, result.bundle.state) for x in draws]
+
+
+def shot_index(result: CalibrationResult, shot: str) -> int | None:
+    """Index of a calibration shot in the bundle's state, or None when it was not solved."""
     names = result.bundle.obs.shot_names
-    if shot not in names:
+    if shot not in names or result.bundle.state.world_from_target[names.index(shot)] is None:
         return None
-    return result.bundle.state.world_from_target[names.index(shot)]
+    return names.index(shot)
 
 
 def locate_target(image, target: Target, camera):
-    """``world_from_target`` of the target in one image of a calibrated camera (detection and PnP),
-    or None when the target is not found there."""
+    """``world_from_target`` of the target in one image of a calibrated camera, or None when the
+    target is not found there.
+
+    Detection and PnP with the camera's intrinsics, then PnP again without the corners whose
+    reprojection error exceeds :data:`LOCATE_OUTLIER_SIGMAS` robust sigmas (at least
+    :data:`LOCATE_MIN_GATE_PX`): a laser stripe across a corner pulls it by up to pixels, and a
+    few such corners move the pose by a millimetre.
+    """
     from scanrig.calibration.detect import detect_target
     from scanrig.calibration.init import view_pose
 
     det = detect_target(image, target)
-    if len(det.point_ids) == 0:
-        return None
-    cam_from_target, _ = view_pose(camera, target, det.point_ids, det.uv)
-    return None if cam_from_target is None else camera.cam_from_world.inverse() @ cam_from_target
+    ids, uv = det.point_ids, det.uv
+    cam_from_target = None
+    for _ in range(LOCATE_ROUNDS):
+        if len(ids) == 0:
+            return None
+        cam_from_target, _ = view_pose(camera, target, ids, uv)
+        if cam_from_target is None:
+            return None
+        p_target, _ = target.lookup(ids)
+        error_px = np.linalg.norm(camera.with_pose(cam_from_target).project(p_target) - uv, axis=1)
+        gate = max(LOCATE_OUTLIER_SIGMAS * MAD_TO_SIGMA * float(np.median(error_px)), LOCATE_MIN_GATE_PX)
+        keep = error_px <= gate
+        if keep.all():
+            break
+        ids, uv = ids[keep], uv[keep]
+    return camera.cam_from_world.inverse() @ cam_from_target

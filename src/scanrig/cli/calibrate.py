@@ -9,6 +9,10 @@ from typing import Annotated
 
 import typer
 
+#: Calibrations drawn from the calibration's covariance to carry its uncertainty into the light
+#: plane's (the sigma they give is known to about 11 %).
+CALIBRATION_SAMPLES = 40
+
 
 def command(
     session: Annotated[Path, typer.Argument(help="Session folder with target.toml and calibration/<camera>/<shot> images.")],
@@ -18,7 +22,7 @@ def command(
     plots: Annotated[bool, typer.Option(help="Write residual/uncertainty PNGs to calibration_report/.")] = True,
     light_plane: Annotated[bool, typer.Option("--light-plane", help="Also calibrate the fixed laser's plane of every camera with light_plane/<camera>/ images; writes light_plane.toml.")] = False,
     color: Annotated[str | None, typer.Option(help="Laser colour for --light-plane: red, green, blue or grey (default: laser_color of session.toml, else grey).")] = None,
-    seed: Annotated[int, typer.Option(help="Random seed of the robust light-plane fit; recorded in light_plane.toml.")] = 0,
+    seed: Annotated[int, typer.Option(help="Random seed of the robust light-plane fit and its calibration samples; recorded in light_plane.toml.")] = 0,
 ):
     """Calibrate all cameras jointly from target images; write rig.toml and calibration_report/.
 
@@ -34,7 +38,9 @@ def command(
 
     Example: scanrig calibrate demo_session --model opencv5
 
-    Example: scanrig calibrate ciclop_session --light-plane --color red
+    Light-plane example, on a simulated one-camera session (scanrig simulate lp_session --cameras 1
+    --frames 1 --no-calibration --target chessboard --light-plane-shots 8):
+    scanrig calibrate lp_session --light-plane
     """
     from rich.progress import Progress
 
@@ -89,30 +95,38 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     """``(camera, fit, skipped)`` for every camera with light-plane images.
 
     A light-plane image whose stem names a solved calibration shot takes that shot's pose and its
-    image as the dark frame; any other is located by detecting the target in it (PnP).
+    image as the dark frame; any other is located by detecting the target in it (PnP). The
+    plane's sigma includes the calibration's, from calibrations drawn from its covariance.
     """
     import numpy as np
 
-    from scanrig.calibration.pipeline import locate_target, shot_pose
+    from scanrig.calibration.pipeline import locate_target, sample_states, shot_index
     from scanrig.io.session import IMAGE_SUFFIXES, read_image
     from scanrig.reconstruct.light_plane_session import LightPlanePose, calibrate_light_plane_images
 
     out = []
     rng = np.random.default_rng(seed)
+    states = sample_states(result, CALIBRATION_SAMPLES, rng)
     for cam_name, paths in images.items():
         camera = result.rig[cam_name]
         laser_off = {p.stem: p for p in (Path(session) / "calibration" / cam_name).iterdir()
                      if p.suffix.lower() in IMAGE_SUFFIXES}
-        poses, skipped = [], []
+        poses, skipped, solved = [], [], {}
         for stem, path in paths.items():
-            pose = shot_pose(result, stem) if stem in laser_off else None
-            if pose is None:
+            index = shot_index(result, stem) if stem in laser_off else None
+            if index is not None:
+                solved[stem] = index
+                pose = result.bundle.state.world_from_target[index]
+            else:
                 pose = locate_target(read_image(path), result.target, camera)
             if pose is None:
                 skipped.append(f"{path}: the target was not found, skipped")
                 continue
             poses.append(LightPlanePose(stem, path, laser_off.get(stem), pose))
-        fit, no_stripe = calibrate_light_plane_images(camera, result.target, poses, color, rng)
+        c = result.rig.names.index(cam_name)
+        samples = [(state.cameras[c], {stem: state.world_from_target[i] for stem, i in solved.items()})
+                   for state in states]
+        fit, no_stripe = calibrate_light_plane_images(camera, result.target, poses, color, rng, samples)
         out.append((cam_name, fit, skipped + no_stripe))
     return out
 

@@ -289,17 +289,14 @@ def with_jackknife_uncertainty(plane: LightPlane, p_world: np.ndarray, weights: 
     labels = np.unique(block)
     if len(labels) < 3 or plane.residual_m <= 0:
         return plane
-    offsets, tilts = [], []
+    refits = []
     for k in labels:
         keep = block != k
         try:
-            sub = fit_plane(p_world[keep], weights[keep])
+            refits.append(fit_plane(p_world[keep], weights[keep]))
         except EstimationError:
             return plane
-        normal = sub.normal if sub.normal @ plane.normal >= 0 else -sub.normal
-        offsets.append(plane.centroid @ normal - sub.offset * np.sign(sub.normal @ plane.normal))
-        tilts.append(plane.axes @ normal)
-    offsets, tilts = np.array(offsets), np.array(tilts)
+    offsets, tilts = _offsets_and_tilts(plane, refits)
     factor = variance_factor * (len(labels) - 1) / len(labels)
     var_offset = factor * np.sum((offsets - offsets.mean()) ** 2)
     var_tilt = factor * np.sum((tilts - tilts.mean(axis=0)) ** 2, axis=0)
@@ -307,6 +304,43 @@ def with_jackknife_uncertainty(plane: LightPlane, p_world: np.ndarray, weights: 
     n_eff = min(float(plane.n_inliers), r2 / max(var_offset, 1e-300))
     spread = np.minimum(plane.spread_m2, r2 / np.maximum(var_tilt, 1e-300))
     return dataclasses.replace(plane, n_inliers=n_eff, spread_m2=spread)
+
+
+def with_sampled_uncertainty(plane: LightPlane, p_samples) -> LightPlane:
+    """The plane with the spread of refits on re-computed points added to its variances.
+
+    The points of a light-plane calibration are made with the calibrated camera and target
+    poses; recomputed with calibrations drawn from the calibration's covariance, each set gives
+    a refitted plane. The variances of their offsets (at ``plane.centroid``) and tilts are the
+    calibration's contribution, shared by every point and every pose, which neither the
+    residuals nor a jackknife over poses can see (a focal length off by 1e-4 moves every point
+    by 1e-4 of its range). They are added to the plane's own variances, expressed again as an
+    effective number of points and effective spreads.
+
+    Parameters
+    ----------
+    plane : LightPlane
+    p_samples : sequence of ndarray of shape (N, 3)
+        The plane's inliers recomputed with each sampled calibration, metres (at least 2 sets).
+    """
+    if len(p_samples) < 2 or plane.residual_m <= 0:
+        return plane
+    offsets, tilts = _offsets_and_tilts(plane, [fit_plane(p) for p in p_samples])
+    r2 = plane.residual_m**2
+    var_offset = r2 / plane.n_inliers + np.var(offsets, ddof=1)
+    var_tilt = r2 / plane.spread_m2 + np.var(tilts, axis=0, ddof=1)
+    return dataclasses.replace(plane, n_inliers=float(r2 / var_offset), spread_m2=r2 / var_tilt)
+
+
+def _offsets_and_tilts(plane: LightPlane, refits) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``(K,)`` of refitted planes at ``plane.centroid`` (metres, along ``plane.normal``)
+    and their normals' tilts ``(K, 2)`` towards ``plane.axes`` (radians)."""
+    offsets, tilts = [], []
+    for sub in refits:
+        sign = 1.0 if sub.normal @ plane.normal >= 0 else -1.0
+        offsets.append(plane.centroid @ (sign * sub.normal) - sign * sub.offset)
+        tilts.append(plane.axes @ (sign * sub.normal))
+    return np.array(offsets), np.array(tilts)
 
 
 def intersect_plane(centers: np.ndarray, dirs: np.ndarray, plane: LightPlane):
@@ -461,18 +495,20 @@ def fit_light_plane(points_by_pose, rng: np.random.Generator, names=None,
     The laser meets a flat target in a straight line: in each pose the points off that pose's
     robust 3-D line are junk (texture edges, reflections) and are left out. Then a consensus
     search (planes through 3 points of 3 different poses, scored by the median absolute distance
-    of all points, so no scale is assumed) finds the plane the majority supports; then the scale is measured from the data (first ``MAD_TO_SIGMA`` × the median
-    absolute distance, then the inliers' RMS distance over :data:`TRUNCATED_SD`), the points
-    within :data:`INLIER_SIGMAS` of it are refitted by least squares, and both are iterated until
-    the inliers no longer change. The plane's uncertainty is that of the
-    least-squares fit on the inliers, widened where a delete-one-pose jackknife shows more:
+    of all points, so no scale is assumed) finds the plane the majority supports; then the scale
+    is measured from the data (first ``MAD_TO_SIGMA`` × the median absolute distance, then the
+    inliers' RMS distance over :data:`TRUNCATED_SD`), the points within :data:`INLIER_SIGMAS` of
+    it are refitted by least squares, and both are iterated until the inliers no longer change.
+    The plane's uncertainty is that of the least-squares fit on the inliers, widened where a
+    delete-one-pose jackknife shows more:
     points of one pose share that pose's error (its target plane), which independent-error
     formulas would divide by the square root of their number. With ``g`` poses the jackknife
     variance is itself known only to ``g - 1`` degrees of freedom, so an error divided by its
     sigma follows Student's t, whose variance is ``(g - 1) / (g - 3)``; the jackknife variances
     are multiplied by that factor so the normalised errors have unit spread (measured over seeds:
     ``benchmarks/bench_light_plane.py``). With fewer than :data:`MIN_JACKKNIFE_POSES` poses the
-    sigma is that of independent errors and a warning says so.
+    sigma is that of independent errors and a warning says so. The calibration's own share of the
+    uncertainty (common to all poses) is added by :func:`with_sampled_uncertainty`.
 
     Parameters
     ----------

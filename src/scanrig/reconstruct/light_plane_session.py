@@ -7,18 +7,27 @@ outline of a target board facing the camera (the whole printed board, margins in
 edges projected through the camera's distortion); their rays meet that board's plane in 3-D
 points of the light plane, and :func:`scanrig.reconstruct.light_plane.fit_light_plane` fits the
 plane to the points of all poses. Light on the floor, the turntable or the wall never enters the
-fit, and a pose whose stripe is not on the target is named and left out.
+fit, and a pose whose stripe is not on the target is named and left out. Given calibrations drawn
+from the calibration's covariance, the same pixels are turned into points with each, and the
+spread of the refitted planes joins the plane's uncertainty.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
-from scanrig.reconstruct.light_plane import LightPlaneFit, fit_light_plane, intersect_plane, plane_from
+from scanrig.reconstruct.light_plane import (
+    LightPlaneFit,
+    fit_light_plane,
+    intersect_plane,
+    plane_from,
+    with_sampled_uncertainty,
+)
 
 #: A pose with fewer stripe points on the target than this has no usable stripe.
 MIN_POSE_POINTS = 20
@@ -60,12 +69,12 @@ def board_outlines(camera, target, world_from_target) -> list:
 
     Returns
     -------
-    list of (ndarray of shape (4 * OUTLINE_SAMPLES, 2), RigidTransform)
-        Per facing board: its outline polygon in pixels and ``world_from_board``.
+    list of (int, ndarray of shape (4 * OUTLINE_SAMPLES, 2))
+        Per facing board: its index in ``target.boards`` and its outline polygon, pixels.
     """
     s = np.linspace(0.0, 1.0, OUTLINE_SAMPLES, endpoint=False)[:, None]
     out = []
-    for board in target.boards:
+    for k, board in enumerate(target.boards):
         world_from_board = world_from_target @ board.target_from_board
         # board z points into the board: it faces the camera when the camera is on its -z side
         if (camera.center_world - world_from_board.t) @ world_from_board.R[:, 2] >= 0:
@@ -75,7 +84,7 @@ def board_outlines(camera, target, world_from_target) -> list:
         edge = np.concatenate([a + s * (b - a) for a, b in zip(corners[:-1], corners[1:])])
         polygon = camera.project(world_from_board.apply(np.c_[edge, np.zeros(len(edge))]))
         if np.all(np.isfinite(polygon)):
-            out.append((polygon, world_from_board))
+            out.append((k, polygon))
     return out
 
 
@@ -89,38 +98,55 @@ def inside_polygon(q: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return (np.count_nonzero(crosses & (u < u_cross), axis=1) % 2) == 1
 
 
-def stripe_points(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
-                  color: str) -> np.ndarray:
-    """3-D points ``(n, 3)`` of the laser stripe on the target at one pose, world frame, metres.
+def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
+                  color: str) -> tuple[np.ndarray, np.ndarray]:
+    """The laser stripe's centres on the target at one pose.
 
-    The brightest stripe centre of every scan line within the outlines' bounding box, kept where
-    it falls inside a facing board's outline, intersected with that board's plane.
+    The brightest stripe centre of every scan line within the outlines' bounding box
+    (:func:`scanrig.detect_stripe`), kept where it falls inside a facing board's outline.
+
+    Returns
+    -------
+    q : ndarray of shape (n, 2)
+        Pixels.
+    board : ndarray of shape (n,), int
+        Index of the board (in ``target.boards``) each lies on.
     """
     from scanrig.laser.stripes import detect_stripe
 
+    none = np.zeros((0, 2)), np.zeros(0, int)
     outlines = board_outlines(camera, target, world_from_target)
     if not outlines:
-        return np.zeros((0, 3))
-    corners = np.concatenate([polygon for polygon, _ in outlines])
+        return none
+    corners = np.concatenate([polygon for _, polygon in outlines])
     u0, v0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
     u1, v1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 1, [image.shape[1], image.shape[0]])
     if u1 - u0 < 2 or v1 - v0 < 2:
-        return np.zeros((0, 3))
+        return none
     table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)))
     first = np.asarray(table.column("rank")) == 0
     q = np.column_stack([np.asarray(table.column("u")), np.asarray(table.column("v"))])[first]
-    points = []
-    for polygon, world_from_board in outlines:
-        on_board = inside_polygon(q, polygon)
-        centers, dirs = camera.rays(q[on_board])
+    board = np.full(len(q), -1)
+    for k, polygon in outlines:
+        board[(board < 0) & inside_polygon(q, polygon)] = k
+    return q[board >= 0], board[board >= 0]
+
+
+def points_on_target(camera, target, world_from_target, q: np.ndarray, board: np.ndarray) -> np.ndarray:
+    """Rays of pixels ``(n, 2)`` met with the planes of their boards: ``(n, 3)`` world points,
+    metres (NaN where a ray misses its board's plane)."""
+    centers, dirs = camera.rays(q)
+    p = np.full((len(q), 3), np.nan)
+    for k in np.unique(board):
+        world_from_board = world_from_target @ target.boards[k].target_from_board
         normal = world_from_board.R[:, 2]
-        p, _ = intersect_plane(centers, dirs, plane_from(normal, normal @ world_from_board.t))
-        points.append(p[np.all(np.isfinite(p), axis=1)])
-    return np.concatenate(points)
+        on = board == k
+        p[on] = intersect_plane(centers[on], dirs[on], plane_from(normal, normal @ world_from_board.t))[0]
+    return p
 
 
 def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], color: str,
-                                 rng: np.random.Generator) -> tuple[LightPlaneFit, list[str]]:
+                                 rng: np.random.Generator, samples=()) -> tuple[LightPlaneFit, list[str]]:
     """The light plane of one camera's laser from its laser-on images of the target.
 
     Parameters
@@ -134,6 +160,11 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         Laser colour.
     rng : numpy.random.Generator
         For the robust fit.
+    samples : sequence of (Camera, dict), optional
+        Calibrations drawn from the calibration's covariance: the camera, and ``name ->
+        world_from_target`` of the poses whose pose the calibration solved (the others keep
+        theirs). The plane's uncertainty then includes the calibration's
+        (:func:`scanrig.reconstruct.light_plane.with_sampled_uncertainty`).
 
     Returns
     -------
@@ -150,7 +181,7 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
     """
     from scanrig.io.session import read_image
 
-    points, names, skipped, first = [], [], [], None
+    used, points, skipped, first = [], [], [], None
     for pose in poses:
         image = _read_sized(pose.image_path, camera, read_image)
         dark = None if pose.dark_path is None else _read_sized(pose.dark_path, camera, read_image)
@@ -158,12 +189,14 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
             raise FileFormatError(pose.dark_path, f"laser-off image is {dark.shape} but its laser-on image "
                                                   f"{pose.image_path.name} is {image.shape}")
         first = first or (pose, image, dark)
-        p = stripe_points(camera, target, pose.world_from_target, image, dark, color)
-        if len(p) < MIN_POSE_POINTS:
-            skipped.append(f"{pose.image_path}: no laser stripe on the target ({len(p)} points), skipped")
+        q, board = stripe_pixels(camera, target, pose.world_from_target, image, dark, color)
+        p = points_on_target(camera, target, pose.world_from_target, q, board)
+        ok = np.all(np.isfinite(p), axis=1)
+        if ok.sum() < MIN_POSE_POINTS:
+            skipped.append(f"{pose.image_path}: no laser stripe on the target ({int(ok.sum())} points), skipped")
         else:
-            points.append(p)
-            names.append(pose.name)
+            used.append((pose, q[ok], board[ok]))
+            points.append(p[ok])
     folder = poses[0].image_path.parent if poses else Path("light_plane") / camera.name
     if not points:
         hint = "" if first is None else _colour_hint(camera, target, color, *first)
@@ -172,7 +205,14 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
     if len(points) < 2:
         raise InputError(f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
                          f"at least 2 are needed (6 or more at different distances and tilts)")
-    return fit_light_plane(points, rng, names), skipped
+    fit = fit_light_plane(points, rng, [pose.name for pose, _, _ in used])
+    p_samples = []
+    for sample_camera, sample_poses in samples:
+        p = np.concatenate([points_on_target(sample_camera, target, sample_poses.get(pose.name, pose.world_from_target),
+                                             q, board) for pose, q, board in used])[fit.inliers]
+        if np.all(np.isfinite(p)):
+            p_samples.append(p)
+    return dataclasses.replace(fit, plane=with_sampled_uncertainty(fit.plane, p_samples)), skipped
 
 
 def _read_sized(path: Path, camera, read_image) -> np.ndarray:
@@ -187,7 +227,7 @@ def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.nda
     """``"; the images show a red stripe: use --color red ..."`` when another colour finds it."""
     if image.ndim != 3:
         return ""
-    found = {other: len(stripe_points(camera, target, pose.world_from_target, image, dark, other))
+    found = {other: len(stripe_pixels(camera, target, pose.world_from_target, image, dark, other)[0])
              for other in ("red", "green", "blue") if other != color}
     best = max(found, key=found.get)
     if found[best] < MIN_POSE_POINTS:

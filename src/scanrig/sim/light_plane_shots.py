@@ -7,7 +7,8 @@ printed target is placed across the sheet at distances of 0.3-0.6 m (farther whe
 not fit the image at 0.3 m), tilted 15-30 degrees about the camera's x, y or a diagonal axis in
 turn. Each pose is written twice with the same stem: ``calibration/<camera>/<stem>.png`` with the
 laser off and ``light_plane/<camera>/<stem>.png`` with it on; the true sheet goes to
-``truth/light_plane.toml``.
+``truth/light_plane.toml`` (the format of ``light_plane.toml``, scene frame) and the poses to
+``truth/light_plane_poses.csv`` (the columns of ``truth/target_poses.csv``).
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def shot_poses(camera, target, beam: BeamPose, n_shots: int, rng: np.random.Gene
 
 def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.random.Generator,
                             camera_name: str | None = None, workers: int | None = None, progress=None) -> list[str]:
-    """Render light-plane shots of one camera; write images and ``truth/light_plane.toml``.
+    """Render light-plane shots of one camera; write images, ``truth/light_plane.toml`` and
+    ``truth/light_plane_poses.csv``.
 
     Parameters
     ----------
@@ -152,11 +154,13 @@ def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.
     report = (lambda done: progress("light plane", done, n_shots)) if progress else None
     run_indexed(render_shot, n_shots, workers, report)
     normal, offset = sheet_plane(beam)
-    doc = {"units": "m", "camera": camera.name, "normal": normal.tolist(), "offset_m": offset,
-           "laser_origin_m": beam.origin.tolist(), "laser_direction": beam.direction.tolist(),
-           "fan_axis": beam.fan_axis.tolist(), "shots": stems,
-           "world_from_target": [np.vstack([np.c_[p.R, p.t], [0, 0, 0, 1]]).tolist() for p in poses]}
-    write_text_atomic(out / "truth" / "light_plane.toml",
-                      "# true laser sheet of the light-plane shots: normal . x = offset_m (scene world frame)\n"
-                      + tomli_w.dumps(doc))
+    # the keys of light_plane.toml, an exact plane (zero residual) in the scene frame
+    doc = {"format_version": 1, "units": "m", "camera": camera.name, "normal": normal.tolist(), "offset_m": offset,
+           "centroid_m": beam.origin.tolist(), "axes": [beam.direction.tolist(), beam.fan_axis.tolist()],
+           "spread_m2": [1.0, 1.0], "residual_m": 0.0, "n_inliers": 1}
+    write_text_atomic(out / "truth" / "light_plane.toml", "# ground truth of simulated light-plane shots: the "
+                      "laser sheet normal . x = offset_m (exact, scene frame)\n" + tomli_w.dumps(doc))
+    rows = [",".join([stem, *(repr(float(v)) for v in (*pose.R.ravel(), *pose.t))]) for stem, pose in zip(stems, poses)]
+    write_text_atomic(out / "truth" / "light_plane_poses.csv",
+                      "\n".join(["shot,r11,r12,r13,r21,r22,r23,r31,r32,r33,tx,ty,tz", *rows]) + "\n")
     return stems
