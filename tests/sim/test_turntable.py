@@ -15,6 +15,7 @@ from scanrig.geometry import Rig
 from scanrig.io.session import read_image
 from scanrig.sim.calibration_shots import CALIBRATION_SUPERSAMPLING, calibration_sensor, write_calibration
 from scanrig.sim.library import load_scene
+from scanrig.sim.light_plane_shots import sheet_plane
 from scanrig.sim.turntable import LASER_FILL, turntable_rig, write_light_plane_shots
 
 #: Frames of the test scan (one every 90 degrees: a wrong object-frame mapping moves points by cm).
@@ -53,7 +54,7 @@ def test_rig_geometry_matches_the_scene():
     rig = turntable_rig(scene)
     centre = np.asarray(scene.center_m)
     np.testing.assert_allclose(np.linalg.norm(rig.camera.center_world - centre), scene.rig.distance_m, rtol=1e-12)
-    normal, offset = rig.light_plane()
+    normal, offset = sheet_plane(rig.laser)
     # the sheet contains the turntable axis, so the object's profile is a meridian
     assert abs(normal @ centre - offset) < 1e-12 and abs(normal @ rig.axis_direction) < 1e-12
     quarter = rig.world_from_object(np.pi / 2)
@@ -116,7 +117,7 @@ def test_light_plane_shot_shows_the_true_sheet_on_the_cube(tmp_path):
     assert 0.5 * LASER_FILL * full_scale_dn < laser_dn.max() <= (LASER_FILL + 0.05) * full_scale_dn
     v, u = np.nonzero(laser_dn > STRIPE_SHARE * laser_dn.max())
     centers, dirs = rig.camera.rays(np.c_[u, v].astype(float))
-    normal, offset = rig.light_plane()
+    normal, offset = sheet_plane(rig.laser)
     p = centers + ((offset - centers @ normal) / (dirs @ normal))[:, None] * dirs
     on_cube = np.abs(np.abs(p).max(axis=1) - CUBE_HALF_EDGE_M)
     assert len(p) >= MIN_STRIPE_PIXELS and on_cube.max() < STRIPE_ON_CUBE_M
@@ -127,3 +128,10 @@ def test_light_plane_shots_option_is_for_the_arc_rig(tmp_path, capsys):
     assert capsys.readouterr().err.splitlines() == [
         "error: --light-plane-shots is for --rig arc; --rig turntable photographs every calibration pose of the "
         "cube with the laser on as well (light_plane/cam0/<shot>)"]
+
+
+def test_colour_scene_is_refused(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "s"), "--rig", "turntable", "--scene", "colour_stripe"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "error: scene 'colour_stripe' has a colour camera; turntable sessions render grey cameras only"]
+    assert not (tmp_path / "s").exists()

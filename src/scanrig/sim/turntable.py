@@ -31,6 +31,7 @@ from scanrig.io.rig_file import save_rig
 from scanrig.io.session import write_image
 from scanrig.sim.laser import BeamPose, trace_laser
 from scanrig.sim.library import load_scene, scene_path
+from scanrig.sim.light_plane_shots import sheet_plane
 from scanrig.sim.parallel import run_indexed
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.render import CameraView
@@ -74,12 +75,6 @@ class TurntableRig:
 
         R = Rotation.from_rotvec(angle_rad * self.axis_direction).as_matrix()
         return RigidTransform(R, self.axis_point_m - R @ self.axis_point_m)
-
-    def light_plane(self) -> tuple[np.ndarray, float]:
-        """The laser sheet as ``normal · x = offset_m`` (world frame): unit normal (3,) and offset."""
-        normal = np.cross(self.laser.direction, self.laser.fan_axis)
-        normal /= np.linalg.norm(normal)
-        return normal, float(normal @ self.laser.origin)
 
 
 def turntable_rig(scene: Scene, triangulation_deg: float = TRIANGULATION_DEG) -> TurntableRig:
@@ -272,6 +267,8 @@ def simulate_turntable_session(
     if not isinstance(scene, Scene):
         scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
         scene = load_scene(scene)
+    if scene.colour is not None:
+        raise InputError(f"scene {scene.name!r} has a colour camera; turntable sessions render grey cameras only")
     rig = turntable_rig(scene, triangulation_deg)
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -310,7 +307,7 @@ def simulate_turntable_session(
     save_rig(Rig([rig.camera]), truth / "rig.toml", metadata={"source": "scanrig simulate (true camera)",
                                                              **provenance},
              comments=["ground truth of a simulated turntable session: the camera that rendered the images"])
-    normal, offset = rig.light_plane()
+    normal, offset = sheet_plane(rig.laser)
     exact = LightPlane(normal, offset, rig.laser.origin, np.array([rig.laser.direction, rig.laser.fan_axis]),
                        np.ones(2), 0.0, 1)
     save_light_plane(truth / "light_plane.toml", exact, name,
