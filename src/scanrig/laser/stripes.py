@@ -30,6 +30,8 @@ DIRECTIONS = ("auto", "rows", "columns")
 #: A stripe that moves at most this far along the scan lines from one line to the next (px) is
 #: crossed at 45° or more from lengthwise (see :func:`_crossed_steeply`).
 _STEEP_STEP_PX = 1.0
+#: Prominence (noise σ of the box sum) of a candidate kept outside its block's direction.
+_CHAIN_MIN_PROMINENCE = 50.0
 #: A fitted centre further than this from its seed pixel has converged onto another peak.
 MAX_SHIFT_PX = 2.0
 
@@ -161,13 +163,14 @@ def _crossed_steeply(cand: _LineCandidates, by_rows: np.ndarray, rows: bool) -> 
     """Keep-mask of the candidates whose scan lines cross their stripe steeply.
 
     A candidate in a block of its direction (:func:`~scanrig.laser.peaks.direction_map`) stays.
-    So does one whose stripe these lines follow steeply for five lines, whatever its block:
-    neighbours on the two previous and the two next lines within ``_STEEP_STEP_PX`` per line (a
-    stripe crossed at 45° or more from lengthwise). That follows a kink (a shoulder, a chin) pixel
-    by pixel where a block holds both the steep and the flat part; noise bumps inside a stripe
-    followed lengthwise seldom line up so (on three lines they did, one in seven).
+    So does a strong one (``_CHAIN_MIN_PROMINENCE``) whose stripe these lines follow steeply for
+    five lines, whatever its block: neighbours on the two previous and the two next lines within
+    ``_STEEP_STEP_PX`` per line (a stripe crossed at 45° or more from lengthwise). That follows a
+    kink (a shoulder, a chin) pixel by pixel where a block holds both the steep and the flat part.
+    Noise bumps on a stripe's flank, which one noisy pixel repeats in three neighbouring box sums,
+    do line up now and then, but not strongly.
     """
-    chained = np.ones(cand.line.size, bool)
+    chained = cand.prominence >= _CHAIN_MIN_PROMINENCE
     for step in (-2, -1, 1, 2):
         chained &= _has_neighbour(cand, _STEEP_STEP_PX * abs(step), step)
     return chained | (by_rows[cand.block_index(rows)] == rows)
