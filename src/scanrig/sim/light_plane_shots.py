@@ -55,6 +55,18 @@ def sheet_plane(beam: BeamPose) -> tuple[np.ndarray, float]:
     return normal, float(normal @ beam.origin)
 
 
+def write_true_light_plane(path: Path, beam: BeamPose, camera_name: str, source: str) -> None:
+    """Write a sheet as an exact plane (zero residual) in the format of ``light_plane.toml``, scene frame."""
+    import tomli_w
+
+    normal, offset = sheet_plane(beam)
+    doc = {"format_version": 1, "units": "m", "camera": camera_name, "normal": normal.tolist(), "offset_m": offset,
+           "centroid_m": beam.origin.tolist(), "axes": [beam.direction.tolist(), beam.fan_axis.tolist()],
+           "spread_m2": [1.0, 1.0], "residual_m": 0.0, "n_inliers": 1}
+    write_text_atomic(path, f"# {source}: the laser sheet normal . x = offset_m (exact, scene frame)\n"
+                      + tomli_w.dumps(doc))
+
+
 def shot_poses(camera, target, beam: BeamPose, n_shots: int, rng: np.random.Generator) -> list[RigidTransform]:
     """``world_from_target`` of ``n_shots`` poses of a planar target across the sheet.
 
@@ -125,8 +137,6 @@ def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.
     list of str
         The stems written.
     """
-    import tomli_w
-
     from scanrig.sim.parallel import run_indexed
 
     camera = rig[camera_name or rig.names[0]]
@@ -153,13 +163,8 @@ def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.
 
     report = (lambda done: progress("light plane", done, n_shots)) if progress else None
     run_indexed(render_shot, n_shots, workers, report)
-    normal, offset = sheet_plane(beam)
-    # the keys of light_plane.toml, an exact plane (zero residual) in the scene frame
-    doc = {"format_version": 1, "units": "m", "camera": camera.name, "normal": normal.tolist(), "offset_m": offset,
-           "centroid_m": beam.origin.tolist(), "axes": [beam.direction.tolist(), beam.fan_axis.tolist()],
-           "spread_m2": [1.0, 1.0], "residual_m": 0.0, "n_inliers": 1}
-    write_text_atomic(out / "truth" / "light_plane.toml", "# ground truth of simulated light-plane shots: the "
-                      "laser sheet normal . x = offset_m (exact, scene frame)\n" + tomli_w.dumps(doc))
+    write_true_light_plane(out / "truth" / "light_plane.toml", beam, camera.name,
+                           "ground truth of simulated light-plane shots")
     rows = [",".join([stem, *(repr(float(v)) for v in (*pose.R.ravel(), *pose.t))]) for stem, pose in zip(stems, poses)]
     write_text_atomic(out / "truth" / "light_plane_poses.csv",
                       "\n".join(["shot,r11,r12,r13,r21,r22,r23,r31,r32,r33,tx,ty,tz", *rows]) + "\n")

@@ -31,7 +31,7 @@ from scanrig.io.rig_file import save_rig
 from scanrig.io.session import write_image
 from scanrig.sim.laser import BeamPose, trace_laser
 from scanrig.sim.library import load_scene, scene_path
-from scanrig.sim.light_plane_shots import sheet_plane
+from scanrig.sim.light_plane_shots import write_true_light_plane
 from scanrig.sim.parallel import run_indexed
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.render import CameraView
@@ -255,8 +255,6 @@ def simulate_turntable_session(
     Path
         The session folder.
     """
-    from scanrig.reconstruct.light_plane import LightPlane, save_light_plane
-
     if rng is None:
         raise InputError("simulate_turntable_session needs rng (a numpy.random.Generator)")
     angles = turntable_angles(n_frames)
@@ -307,11 +305,7 @@ def simulate_turntable_session(
     save_rig(Rig([rig.camera]), truth / "rig.toml", metadata={"source": "scanrig simulate (true camera)",
                                                              **provenance},
              comments=["ground truth of a simulated turntable session: the camera that rendered the images"])
-    normal, offset = sheet_plane(rig.laser)
-    exact = LightPlane(normal, offset, rig.laser.origin, np.array([rig.laser.direction, rig.laser.fan_axis]),
-                       np.ones(2), 0.0, 1)
-    save_light_plane(truth / "light_plane.toml", exact, name,
-                     comments=["ground truth of a simulated turntable session: the laser sheet (exact)"])
+    write_true_light_plane(truth / "light_plane.toml", rig.laser, name, "ground truth of a simulated turntable session")
     write_truth_meshes(truth, scene, "object frame (the world frame at turntable angle 0)")
     write_text_atomic(truth / "frames.csv", frames_csv(stems, truth_rows))
     write_text_atomic(truth / "laser.csv", laser_csv([rig.laser] * n_frames, stems))
