@@ -16,8 +16,9 @@ def command(
 ):
     """Write a self-contained HTML report: calibration evidence, detections, 3-D cloud, accuracy.
 
-    Uses whatever the session holds (rig.toml, calibration_report/, traces.parquet,
-    points.ply, surface.ply, truth/) and says which parts are missing. The page needs no network.
+    Uses whatever the session holds (rig.toml, calibration_report/, light_plane.toml,
+    scan/object_poses.csv, traces.parquet, points.ply, surface.ply, truth/) and says which parts
+    are missing. The page needs no network.
 
     Example: scanrig report demo_session --max-points 50000 --seed 1
     """
