@@ -66,3 +66,32 @@ def stripe_frames(rng: np.random.Generator, shape=(480, 640), overexposure: floa
     on = colour_frame(scene_e, laser_e, sensor, response, rng)
     off = colour_frame(scene_e, np.zeros(shape), sensor, response, rng)
     return on, off, centre_u
+
+
+def spot_frames(rng: np.random.Generator, shape=(480, 640), overexposure: float = 8.0,
+                response: ColourResponse = RESPONSE, spacing_px: int = 60, sigma_px: float = 1.5):
+    """A laser-on frame with a grid of over-exposed red spots, its laser-off frame and the true centres.
+
+    Returns
+    -------
+    on, off : (H, W, 3) uint8 arrays
+    centres : (n, 2) float array
+        True ``(u, v)`` of the spots, px.
+    """
+    sensor = Sensor()
+    full_e = sensor.full_well_e
+    albedo = printed_dots(shape, rng)
+    h, w = shape
+    gv, gu = np.meshgrid(np.arange(spacing_px, h - spacing_px // 2, spacing_px),
+                         np.arange(spacing_px, w - spacing_px // 2, spacing_px), indexing="ij")
+    centres = np.stack([gu.ravel(), gv.ravel()], axis=1) + rng.uniform(-0.5, 0.5, (gu.size, 2))
+    beam = np.zeros(shape)
+    for u0, v0 in centres:  # a few dozen spots, each its own small patch
+        rows, cols = np.arange(int(v0) - 12, int(v0) + 13), np.arange(int(u0) - 12, int(u0) + 13)
+        beam[np.ix_(rows, cols)] += (integrated(rows.astype(float), v0, sigma_px)[:, None]
+                                     * integrated(cols.astype(float), u0, sigma_px)[None, :])
+    laser_e = overexposure * full_e * beam * albedo / PAPER_ALBEDO
+    scene_e = PAPER_LEVEL * full_e * albedo / PAPER_ALBEDO
+    on = colour_frame(scene_e, laser_e, sensor, response, rng)
+    off = colour_frame(scene_e, np.zeros(shape), sensor, response, rng)
+    return on, off, centres

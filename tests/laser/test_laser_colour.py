@@ -109,3 +109,34 @@ def test_printed_edges_are_not_stripes():
     found = np.full(h, np.nan)
     found[line] = u
     assert np.mean(np.abs(found[rows] - centre_u[rows]) < 1.0) >= 0.99
+
+
+def _spot_errors(seed: int, use_dark: bool):
+    """For every true spot: distance to the nearest detection (px), its u error over its σ_u, and
+    whether it was clipped."""
+    from .colour_synth import spot_frames
+
+    on, off, centres = spot_frames(np.random.default_rng(seed))
+    t = scanrig.detect_spots(on, color="red", dark=off if use_dark else None, max_candidates=200)
+    u, v, cov_uu, clipped = (t[k].to_numpy() for k in ("u", "v", "cov_uu", "saturated"))
+    distance = np.hypot(u[:, None] - centres[None, :, 0], v[:, None] - centres[None, :, 1])
+    nearest = np.argmin(distance, axis=0)
+    return (distance[nearest, np.arange(len(centres))], (u[nearest] - centres[:, 0]) / np.sqrt(cov_uu[nearest]),
+            clipped[nearest])
+
+
+@pytest.mark.parametrize("use_dark", [False, True])
+def test_clipped_colour_spots_are_centred(use_dark):
+    """Over-exposed red spots on printed paper: the clipped ones, fitted from all channels, are
+    centred to 0.15 px (median); before, from the laser signal alone, 0.43 px."""
+    err, _, clipped = (np.concatenate(x) for x in zip(*(_spot_errors(seed, use_dark) for seed in (0, 1))))
+    assert clipped.mean() > 0.75
+    assert np.median(err[clipped]) <= 0.15
+    assert np.mean(err < 0.5) >= (0.9 if use_dark else 0.7)  # measured 0.94 and 0.77 (seeds 0-3)
+
+
+@pytest.mark.xfail(strict=True, reason="clipped colour spots: demosaicing and the halo leave errors the "
+                   "residuals do not show; sigma is understated 2.3-2.6-fold")
+def test_sigma_of_clipped_colour_spots_is_honest():
+    err, z, clipped = (np.concatenate(x) for x in zip(*(_spot_errors(seed, True) for seed in (0, 1))))
+    assert 0.7 <= _spread(z[clipped & (err < 0.5)]) <= 1.4

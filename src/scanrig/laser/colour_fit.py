@@ -1,16 +1,17 @@
-"""Clipped stripes in colour frames: one centre from every channel that is not clipped.
+"""Clipped traces in colour frames: one centre from every channel that is not clipped.
 
 A red line laser exposed past full scale clips the red channel over a band several beam-widths
 wide. The green and blue filters pass a few per cent of red light (and a camera's colour matrix
 may subtract it again), so those channels rise, or dip, by a scaled copy of the same profile and
 peak at the beam's centre, where the red channel carries nothing. Both pieces of information are
-used at once: along the scan line, channel ``c`` at pixel ``i`` is modelled as
+used at once: channel ``c`` at pixel ``i`` is modelled as
 
-    μ_ci = b_c + a_c · g_i(x0, s)
+    μ_ci = b_c + a_c · g_i
 
-with ``g`` the unit-peak pixel-integrated Gaussian of :mod:`scanrig.laser.fit`, one centre
-``x0`` and width ``s`` shared by the channels, and an amplitude ``a_c`` (signed, except the
-laser channel's) and a background ``b_c`` of each. Pixels clipped in the frame or in the dark
+with ``g`` the unit-peak pixel-integrated Gaussian of :mod:`scanrig.laser.fit` (along the scan line
+for a stripe, the separable product in ``u`` and ``v`` for a spot), its centre and widths shared
+by the channels, and an amplitude ``a_c`` (signed, except the laser channel's) and a background
+``b_c`` of each. Pixels clipped in the frame or in the dark
 frame are left out in that channel only; each channel is weighted by its own noise. A halo of
 light scattered below the surface widens the profile symmetrically: it does not move the centre,
 and where the model leaves a misfit on the flanks the reported σ grows
@@ -22,10 +23,11 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _profile, centre_misfit, fit_batch
-from scanrig.laser.image import ColourFrames, estimate_noise
+from scanrig.laser.image import ColourFrames, effective_noise
 
-#: Parameter order of the colour model.
-PARAMS = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
+#: Parameter order of the colour models: the profile's (centre, then widths), then per channel.
+PARAMS_1D = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
+PARAMS_2D = ("u0", "v0", "width_u", "width_v", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
 #: Largest amplitude fitted, in units of the clip level (a laser 100 times past full scale).
 _MAX_OVEREXPOSURE = 100.0
 #: Widths tried for the start, pixels.
@@ -33,18 +35,19 @@ _START_WIDTHS = np.array([0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0])
 
 
 def channel_noise(colour: ColourFrames) -> np.ndarray:
-    """Noise σ of each raw channel (of frame − dark with a dark frame), DN: ``(3,)``."""
+    """Noise σ of each raw channel (of frame − dark with a dark frame), DN: ``(3,)``, including
+    noise correlated over a few pixels (:func:`~scanrig.laser.image.effective_noise`)."""
     out = np.empty(3)
     for c in range(3):
         plane = colour.image[:, :, c]
         if colour.dark is not None:
             plane = plane.astype(np.float32) - colour.dark[:, :, c]
-        out[c] = estimate_noise(plane)
+        out[c] = effective_noise(plane)
     return out
 
 
 def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndarray, half: int,
-                max_shift_px: float) -> dict[str, np.ndarray]:
+                max_shift_px) -> dict[str, np.ndarray]:
     """Fit the colour model to clipped stripe candidates along their scan lines.
 
     Parameters
@@ -66,79 +69,169 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
         ``index`` (into the input), ``centre`` (px along the line), ``var`` (px²), ``peak``
         (laser channel's amplitude, DN), ``width_px``, ``snr`` (peak over the laser channel's noise).
     """
-    image, dark = (colour.image, colour.dark) if rows else (
-        colour.image.transpose(1, 0, 2), None if colour.dark is None else colour.dark.transpose(1, 0, 2))
-    n_pos = image.shape[1]
     offs = np.arange(-half, half + 1)
-    idx = pos[:, None] + offs  # (n, W)
-    inside = (idx >= 0) & (idx < n_pos)
-    np.clip(idx, 0, n_pos - 1, out=idx)
-    raw = image[line[:, None], idx]  # (n, W, 3)
-    usable = inside[:, :, None] & (raw < colour.clip_level)
-    y = raw.astype(np.float64)
-    if dark is not None:
-        raw_dark = dark[line[:, None], idx]
-        usable &= raw_dark < colour.clip_level
-        y -= raw_dark
-    noise = channel_noise(colour)
-    # candidate-minor stacks, channel-major pixels: (3 W, n)
-    y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, line.size))
-    mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, line.size))
-    laser = colour.laser_channel
-    p0 = _start(y, usable, offs, noise, laser)
-    lower = np.full(8, -np.inf)
-    upper = np.full(8, np.inf)
-    lower[:2], upper[:2] = (-half, MIN_WIDTH_PX), (half, half / 2.0)
-    lower[2:5], upper[2:5] = -_MAX_OVEREXPOSURE * colour.clip_level, _MAX_OVEREXPOSURE * colour.clip_level
-    lower[2 + laser] = MIN_PEAK_DN
-    whitened = y_minor / np.repeat(noise, offs.size)[:, None]
-    res = fit_batch(_model(offs.astype(float), noise), whitened, mask, p0, lower, upper, minor=True)
-    p = res.params
-    var = res.info_inv[:, 0, 0].copy()
-    good = np.isfinite(var)
-    if good.any():  # whitened pixels: unit variance where fitted
-        jac = res.jac.transpose(2, 1, 0)[..., good]
-        var[good] *= centre_misfit(jac, res.info_inv[good], res.residuals.T[:, good],
-                                   mask[:, good].astype(float), res.dof[good], (0,))
+    along = pos[:, None] + offs  # (n, W)
+    across = np.broadcast_to(line[:, None], along.shape)
+    y, usable, noise = _windows(colour, across, along) if rows else _windows(colour, along, across)
+    trial = np.exp(-0.5 * (offs[None, :] / _START_WIDTHS[:, None]) ** 2)  # (k, W)
+    lower, upper = _bounds(colour, half, 1)
+    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_1d(offs.astype(float), noise), trial, lower,
+                    upper)
+    p, var = res.params, cov[:, 0, 0]
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
-    peak = p[:, 2 + laser]
+    peak = p[:, 2 + colour.laser_channel]
     out = {"index": np.arange(line.size), "centre": pos + p[:, 0], "var": var, "peak": peak,
-           "width_px": p[:, 1], "snr": peak / noise[laser]}
+           "width_px": p[:, 1], "snr": peak / noise[colour.laser_channel]}
     return {k: a[ok] for k, a in out.items()}
 
 
-def _model(x: np.ndarray, noise: np.ndarray):
-    """The colour model for :func:`scanrig.laser.fit.fit_batch` (``minor``), whitened by each
-    channel's noise: ``p (8, n)`` -> ``mu (3 W, n)``, ``jac (8, 3 W, n)``."""
+def fit_clipped_spots(colour: ColourFrames, u: np.ndarray, v: np.ndarray, half: int,
+                      max_shift_px: float) -> dict[str, np.ndarray]:
+    """Fit the colour model to clipped spot candidates.
+
+    Parameters
+    ----------
+    colour : ColourFrames
+        The raw frames (signal coordinates).
+    u, v : (n,) int arrays
+        Seed pixel of each candidate: the pixel nearest the centroid of its clipped core.
+    half : int
+        The window is ``± half`` pixels in ``u`` and ``v``.
+    max_shift_px : float
+        A fitted centre further than this from the seed in ``u`` or ``v`` is dropped.
+
+    Returns
+    -------
+    dict of (n_ok,) arrays
+        ``index`` (into the input), ``u``, ``v`` (px), ``cov`` (n_ok, 2, 2) px², ``peak`` (laser
+        channel's amplitude, DN), ``width_px`` (geometric mean of the two widths), ``snr``.
+    """
+    offs = np.arange(-half, half + 1)
+    w = offs.size
+    rows = np.repeat(v[:, None] + offs, w, axis=1)  # (n, W·W): pixel (row k, column j) at k·W + j
+    cols = np.tile(u[:, None] + offs, (1, w))
+    y, usable, noise = _windows(colour, rows, cols)
+    r2 = offs[:, None] ** 2 + offs[None, :] ** 2
+    trial = np.exp(-0.5 * r2.ravel()[None, :] / _START_WIDTHS[:, None] ** 2)  # (k, W·W)
+    lower, upper = _bounds(colour, half, 2)
+    x = offs.astype(float)
+    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_2d(x, x, noise), trial, lower, upper)
+    p, cov = res.params, cov[:, :2, :2]
+    ok = (np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.abs(p[:, :2]) <= max_shift_px, axis=1)
+          & (res.dof > 0))
+    peak = p[:, 4 + colour.laser_channel]
+    out = {"index": np.arange(u.size), "u": u + p[:, 0], "v": v + p[:, 1], "cov": cov, "peak": peak,
+           "width_px": np.sqrt(p[:, 2] * p[:, 3]), "snr": peak / noise[colour.laser_channel]}
+    return {k: a[ok] for k, a in out.items()}
+
+
+def _windows(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray):
+    """Pixels ``(n, M, 3)`` of the frame (minus the dark frame) at ``rows, cols (n, M)``, which are
+    usable (inside the frame, clipped in neither frame), and each channel's noise ``(3,)``."""
+    h, w = colour.image.shape[:2]
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    rows, cols = np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)
+    raw = colour.image[rows, cols]
+    usable = inside[:, :, None] & (raw < colour.clip_level)
+    y = raw.astype(np.float64)
+    if colour.dark is not None:
+        raw_dark = colour.dark[rows, cols]
+        usable &= raw_dark < colour.clip_level
+        y -= raw_dark
+    return y, usable, channel_noise(colour)
+
+
+def _bounds(colour: ColourFrames, half: int, n_axes: int):
+    """Lower and upper bounds of the colour model with ``n_axes`` centre coordinates."""
+    n_par = 2 * n_axes + 6
+    lower, upper = np.full(n_par, -np.inf), np.full(n_par, np.inf)
+    lower[:n_axes], upper[:n_axes] = -half, half
+    lower[n_axes : 2 * n_axes], upper[n_axes : 2 * n_axes] = MIN_WIDTH_PX, half / 2.0
+    amp = slice(2 * n_axes, 2 * n_axes + 3)
+    lower[amp], upper[amp] = -_MAX_OVEREXPOSURE * colour.clip_level, _MAX_OVEREXPOSURE * colour.clip_level
+    lower[2 * n_axes + colour.laser_channel] = MIN_PEAK_DN
+    return lower, upper
+
+
+def _fit(y, usable, noise, laser, model, trial, lower, upper):
+    """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)``; returns the fit and the
+    covariance ``(n, P, P)`` of the parameters, inflated where the model leaves a misfit that pulls
+    the centre (:func:`~scanrig.laser.fit.centre_misfit`)."""
+    n, m = y.shape[:2]
+    n_axes = (lower.size - 6) // 2
+    # candidate-minor stacks, channel-major pixels: (3 M, n)
+    y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
+    mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
+    start = _start(y, usable, trial, noise, laser)
+    p0 = np.concatenate([np.zeros((n, n_axes)), np.repeat(start[:, :1], n_axes, axis=1), start[:, 1:]], axis=1)
+    res = fit_batch(model, y_minor, mask, p0, lower, upper, minor=True)
+    cov = res.info_inv.copy()
+    good = np.all(np.isfinite(cov), axis=(1, 2))
+    if good.any():  # whitened pixels: unit variance where fitted
+        cov[good] *= centre_misfit(res.jac.transpose(2, 1, 0)[..., good], res.info_inv[good],
+                                   res.residuals.T[:, good], mask[:, good].astype(float), res.dof[good],
+                                   tuple(range(n_axes)))[:, None, None]
+    return res, cov
+
+
+def _model_1d(x: np.ndarray, noise: np.ndarray):
+    """The colour model along a line for :func:`scanrig.laser.fit.fit_batch` (``minor``), whitened
+    by each channel's noise: ``p (8, n)`` -> ``mu (3 W, n)``, ``jac (8, 3 W, n)``."""
     edges = _edges(x)
     w = x.size
-    inv = 1.0 / noise
 
     def model(p):
-        n = p.shape[1]
-        prof = np.empty((3, w, n))
+        prof = np.empty((3, w, p.shape[1]))
         _profile(edges, p[0], p[1], prof)  # g, dg/dx0, dg/ds
-        jac = np.zeros((8, 3, w, n))
-        mu = np.empty((3, w, n))
-        for c in range(3):  # three channels: a loop over a fixed axis of length 3, not over data
-            a = p[2 + c] * inv[c]
-            jac[0, c] = prof[1] * a
-            jac[1, c] = prof[2] * a
-            jac[2 + c, c] = prof[0] * inv[c]
-            jac[5 + c, c] = inv[c]
-            mu[c] = prof[0] * a + p[5 + c] * inv[c]
-        return mu.reshape(3 * w, n), jac.reshape(8, 3 * w, n)
+        return _channels(prof[0], prof[1:], p[2:], noise)
 
     return model
 
 
-def _start(y: np.ndarray, usable: np.ndarray, offs: np.ndarray, noise: np.ndarray, laser: int) -> np.ndarray:
-    """Start values ``(n, 8)``: centre 0 (the middle of the clipped run), the best of a few
-    trial widths, and each channel's amplitude and background solved linearly for it from that
-    channel's usable pixels (``y (n, W, 3)``, ``usable (n, W, 3)``)."""
-    g = np.exp(-0.5 * (offs[None, :] / _START_WIDTHS[:, None]) ** 2)  # (k, W)
-    w = usable.transpose(0, 2, 1)[:, :, None, :].astype(float)  # (n, 3, 1, W)
-    yy = y.transpose(0, 2, 1)[:, :, None, :]  # (n, 3, 1, W)
+def _model_2d(xu: np.ndarray, xv: np.ndarray, noise: np.ndarray):
+    """The separable colour spot model (pixel ``row · Wu + column``), whitened by each channel's
+    noise: ``p (10, n)`` -> ``mu (3 Wv Wu, n)``, ``jac (10, 3 Wv Wu, n)``."""
+    edges_u, edges_v = _edges(xu), _edges(xv)
+
+    def model(p):
+        n = p.shape[1]
+        pu, pv = np.empty((3, xu.size, n)), np.empty((3, xv.size, n))
+        _profile(edges_u, p[0], p[2], pu)
+        _profile(edges_v, p[1], p[3], pv)
+        g = (pv[0][:, None] * pu[0][None]).reshape(-1, n)
+        dg = np.stack([pv[0][:, None] * pu[1][None], pv[1][:, None] * pu[0][None],  # d/du0, d/dv0
+                       pv[0][:, None] * pu[2][None], pv[2][:, None] * pu[0][None]])  # d/dsu, d/dsv
+        return _channels(g, dg.reshape(4, -1, n), p[4:], noise)
+
+    return model
+
+
+def _channels(g: np.ndarray, dg: np.ndarray, per_channel: np.ndarray, noise: np.ndarray):
+    """Model and Jacobian of ``b_c + a_c g`` for the three channels, whitened by ``noise``.
+
+    ``g (M, n)`` the profile, ``dg (K, M, n)`` its derivatives by the K profile parameters,
+    ``per_channel (6, n)`` the amplitudes then the backgrounds. Returns ``mu (3 M, n)`` and
+    ``jac (K + 6, 3 M, n)``.
+    """
+    k, m, n = dg.shape
+    jac = np.zeros((k + 6, 3, m, n))
+    mu = np.empty((3, m, n))
+    for c in range(3):  # the three channels: a loop over a fixed axis of length 3, not over data
+        a = per_channel[c] / noise[c]
+        jac[:k, c] = dg * a
+        jac[k + c, c] = g / noise[c]
+        jac[k + 3 + c, c] = 1.0 / noise[c]
+        mu[c] = g * a + per_channel[3 + c] / noise[c]
+    return mu.reshape(3 * m, n), jac.reshape(k + 6, 3 * m, n)
+
+
+def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarray, laser: int) -> np.ndarray:
+    """Start values ``(n, 7)``: the best of the trial widths, then per channel the amplitude and the
+    background solved linearly for it from that channel's usable pixels (``y, usable (n, M, 3)``,
+    ``trial (k, M)`` the unit profile of each trial width, centred on the seed)."""
+    g = trial[None, None]  # (1, 1, k, M)
+    w = usable.transpose(0, 2, 1)[:, :, None, :].astype(float)  # (n, 3, 1, M)
+    yy = y.transpose(0, 2, 1)[:, :, None, :]
     s_w, s_g, s_y = w.sum(-1), (w * g).sum(-1), (w * yy).sum(-1)  # (n, 3, k)
     s_gg, s_gy = (w * g * g).sum(-1), (w * g * yy).sum(-1)
     det = s_w * s_gg - s_g**2
@@ -150,5 +243,5 @@ def _start(y: np.ndarray, usable: np.ndarray, offs: np.ndarray, noise: np.ndarra
     best = np.argmin(resid.sum(axis=1), axis=1)  # (n,)
     pick = np.arange(y.shape[0])
     a, b = amp[pick, :, best], bg[pick, :, best]  # (n, 3)
-    a[:, laser] = np.maximum(a[:, laser], 1.0)
-    return np.concatenate([np.zeros((y.shape[0], 1)), _START_WIDTHS[best, None], a, b], axis=1)
+    a[:, laser] = np.maximum(a[:, laser], 1.0)  # a peak, not a dip; the fit clips to its bounds
+    return np.concatenate([_START_WIDTHS[best, None], a, b], axis=1)

@@ -402,13 +402,14 @@ def _spd_inverse(jac: np.ndarray) -> np.ndarray:
         ratio = np.prod(np.square([low[j][j] for j in range(size)]) / diag, axis=0)
     ok = ratio > 1e-12  # NaN (not positive definite) is not ok either
     m = [[None] * size for _ in range(size)]  # m = L⁻¹ (lower triangular); h⁻¹ = mᵀ m
-    for i in range(size):
-        m[i][i] = inv_diag[i]
-        for j in range(i):
-            s = low[i][j] * m[j][j]
-            for k in range(j + 1, i):
-                s = s + low[i][k] * m[k][j]
-            m[i][j] = -s * inv_diag[i]
+    with np.errstate(invalid="ignore", over="ignore"):  # not positive definite: NaN, set below
+        for i in range(size):
+            m[i][i] = inv_diag[i]
+            for j in range(i):
+                s = low[i][j] * m[j][j]
+                for k in range(j + 1, i):
+                    s = s + low[i][k] * m[k][j]
+                m[i][j] = -s * inv_diag[i]
     for i in range(size):
         for j in range(i + 1):
             s = m[i][i] * m[i][j]

@@ -406,6 +406,15 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
     return _noise_from_bands(rows, high_pass, signal.shape, step, local)
 
 
+def effective_noise(signal: np.ndarray) -> float:
+    """Noise σ of an image for fits over a few pixels, DN: :func:`estimate_noise`, scaled by
+    :func:`correlated_noise_factor` where the noise is correlated over a few pixels."""
+    rows, high_pass = _high_pass_bands(signal)
+    sigma = _noise_from_bands(rows, high_pass, signal.shape, 1.0, local=False)
+    factor = correlated_noise_factor(signal, rows, sigma)
+    return sigma * factor if factor > _CORRELATED_NOISE_MIN else sigma
+
+
 def correlated_noise_factor(signal: np.ndarray, rows: np.ndarray, sigma: float) -> float:
     """How much larger the noise of a 3 × 3 box sum is than white pixel noise of σ would make it (≥ 1).
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scanrig.laser.colour_fit import fit_clipped_spots
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_2d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.peaks import Candidates, find_candidates, suppress_2d
@@ -101,13 +102,41 @@ def detect_spots(
 
 
 def _fit_spots(li, cand: Candidates, max_width_px: float) -> dict[str, np.ndarray]:
-    """Fit a separable pixel-integrated Gaussian around every candidate; failed fits are dropped.
-    The windows are stacked candidate-minor, ``(Wv, Wu, n)`` (see :mod:`scanrig.laser.fit`)."""
+    """Fit every candidate (a clipped spot of a colour frame from all its channels, the others on
+    the laser signal); failed fits are dropped."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
-    h, w = li.signal.shape
     if li.saturated is not None:
         cand = _centre_of_saturated_core(li.saturated, cand, offs)
+    clipped = np.zeros(cand.u.size, bool)
+    if li.colour is not None and li.saturated is not None:
+        clipped = li.saturated[cand.v, cand.u]
+    parts = []
+    if not clipped.all():
+        parts.append(_fit_signal(li, cand.take(~clipped), half, max_width_px))
+    if clipped.any():
+        parts.append(_fit_colour(li, cand.take(clipped), half))
+    return {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
+
+
+def _fit_colour(li, cand: Candidates, half: int) -> dict[str, np.ndarray]:
+    """Clipped spots of a colour frame, fitted from every channel (:mod:`scanrig.laser.colour_fit`)
+    in a window grown by the clipped core's radius."""
+    run = li.saturated[np.clip(cand.v[:, None] + np.arange(-half, half + 1), 0, li.saturated.shape[0] - 1),
+                       cand.u[:, None]].sum(axis=1)
+    fit = fit_clipped_spots(li.colour, cand.u, cand.v, half + int(run.max()) // 2, MAX_SHIFT_PX)
+    cov = fit.pop("cov")
+    return {"u": fit["u"], "v": fit["v"],
+            "sigma_px": np.sqrt(np.abs(_larger_eigenvalue(cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]))),
+            "peak": fit["peak"], "width_px": fit["width_px"], "snr": fit["snr"], "cov_uu": cov[:, 0, 0],
+            "cov_uv": cov[:, 0, 1], "cov_vv": cov[:, 1, 1], "saturated": np.ones(fit["u"].size, bool)}
+
+
+def _fit_signal(li, cand: Candidates, half: int, max_width_px: float) -> dict[str, np.ndarray]:
+    """Fit a separable pixel-integrated Gaussian to the laser signal around every candidate. The
+    windows are stacked candidate-minor, ``(Wv, Wu, n)`` (see :mod:`scanrig.laser.fit`)."""
+    offs = np.arange(-half, half + 1)
+    h, w = li.signal.shape
     rows = offs[:, None] + cand.v
     cols = offs[:, None] + cand.u
     inside = ((rows >= 0) & (rows < h))[:, None, :] & ((cols >= 0) & (cols < w))[None, :, :]
