@@ -53,6 +53,7 @@ def test_light_plane_end_to_end(session, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "light plane of cam0 (world frame of rig.toml)" in out
     assert f"skipped: {root / 'light_plane' / 'cam0' / 'zz_blank.png'}: the target was not found, skipped" in out
+    assert "  images   8 used, 1 skipped" in out
     assert "warning" not in out.split("light plane of cam0")[1]
     plane, camera = load_light_plane(root / "light_plane.toml")
     assert camera == "cam0"
@@ -120,3 +121,43 @@ def test_light_plane_wrong_colour_names_the_right_one(session, tmp_path, capsys)
            f"images show a red stripe: use --color red (or laser_color = 'red' in session.toml)")
     assert main(["calibrate", str(root), "--light-plane", "--color", "red", "--no-cross-validate", "--no-plots"]) == 0
     assert "laser_color = \"red\"" in (root / "light_plane.toml").read_text()
+
+
+def _bright_line(image, rows, u_centre, peak):
+    """Add a Gaussian line (sigma 1 px) centred at column ``u_centre`` on ``rows``."""
+    u = np.arange(image.shape[1])
+    profile = peak * np.exp(-0.5 * (u - u_centre) ** 2)
+    out = image.astype(np.float64)
+    out[rows] += profile
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.slow
+def test_light_plane_ignores_ten_percent_junk(session, tmp_path, capsys):
+    """Brighter lines beside the stripe on 10 % of its rows (on the board, off the sheet) and on
+    rows above the board (off the target): the plane moves by less than its sigma."""
+    from scanrig import detect_stripe
+    from scanrig.io.session import read_image
+
+    clean = _copy(session, tmp_path / "clean")
+    dirty = _copy(session, tmp_path / "dirty")
+    for path in sorted((dirty / "light_plane" / "cam0").iterdir()):
+        image = read_image(path)
+        table = detect_stripe(image, dark=read_image(dirty / "calibration" / "cam0" / path.name))
+        stripe = table.filter(np.asarray(table.column("rank")) == 0)
+        v, u = np.asarray(stripe.column("v")), np.asarray(stripe.column("u"))
+        rows = np.unique(np.rint(v).astype(int))
+        rows = rows[len(rows) // 2: len(rows) // 2 + len(rows) // 10]  # 10 % of the stripe's rows
+        image = _bright_line(image, rows, np.median(u) + 40, 200.0)  # on the board, off the sheet
+        above = np.arange(max(int(v.min()) - 40, 0), int(v.min()) - 5)
+        image = _bright_line(image, above, np.median(u), 200.0)       # off the board
+        cv2.imwrite(str(path), image)
+    planes = []
+    for root in (clean, dirty):
+        assert main(["calibrate", str(root), "--light-plane", "--no-cross-validate", "--no-plots"]) == 0
+        planes.append(load_light_plane(root / "light_plane.toml")[0])
+    capsys.readouterr()
+    ref, moved = planes
+    c = ref.centroid[None]
+    assert abs(moved.distance(c)[0]) < ref.offset_sigma(c)[0]
+    assert np.all(np.abs(ref.axes @ moved.normal) < ref.tilt_sigma_rad())

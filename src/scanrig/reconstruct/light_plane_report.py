@@ -22,6 +22,7 @@ def format_light_plane_summary(fit: LightPlaneFit, camera: str, skipped=()) -> s
              f"  (at the points' centroid {1e3 * plane.offset_sigma(plane.centroid[None])[0]:.4f} mm)",
              f"  inliers  {n_in} of {len(fit.inliers)} stripe points, RMS {1e3 * plane.residual_m:.4f} mm "
              f"(robust scale {1e3 * fit.scale_m:.4f} mm)",
+             f"  images   {len(fit.poses)} used, {len(skipped)} skipped",
              f"  {'pose':<16}{'points':>8}{'inliers':>9}{'RMS mm':>10}{'mean mm':>10}"]
     for r in fit.poses:
         lines.append(f"  {r.name:<16}{r.n_points:>8}{r.n_inliers:>9}{1e3 * r.rms_m:>10.4f}{1e3 * r.mean_m:>+10.4f}")
