@@ -161,3 +161,21 @@ def test_light_plane_ignores_ten_percent_junk(session, tmp_path, capsys):
     c = ref.centroid[None]
     assert abs(moved.distance(c)[0]) < ref.offset_sigma(c)[0]
     assert np.all(np.abs(ref.axes @ moved.normal) < ref.tilt_sigma_rad())
+
+
+def test_several_cameras_write_one_file_each(tmp_path):
+    from scanrig.cli.calibrate import _write_light_planes
+    from scanrig.reconstruct.light_plane import calibrate_light_plane
+
+    rng = np.random.default_rng(9)
+    planes, pixels, _ = synth.observation(rng)
+    fit = calibrate_light_plane(synth.camera(), planes, pixels, rng)
+    (tmp_path / "calibration_report").mkdir()
+    summaries = _write_light_planes(tmp_path, [("cam0", fit, []), ("cam2", fit, [])], "red", 3, "scanrig calibrate",
+                                    plots=False)
+    assert [s.splitlines()[-1] for s in summaries] == [f"wrote {tmp_path / 'light_plane_cam0.toml'}",
+                                                       f"wrote {tmp_path / 'light_plane_cam2.toml'}"]
+    assert load_light_plane(tmp_path / "light_plane_cam2.toml")[1] == "cam2"
+    assert not (tmp_path / "light_plane.toml").exists()
+    text = (tmp_path / "calibration_report" / "light_plane_summary.txt").read_text()
+    assert text.count("light plane of ") == 2
