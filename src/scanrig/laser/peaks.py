@@ -96,6 +96,45 @@ def _upsample(cells: np.ndarray, factor: int, shape) -> np.ndarray:
     return np.repeat(np.repeat(cells, factor, 1), factor, 0)[: shape[0], : shape[1]]
 
 
+#: A scan direction is worth running in a block when the pre-scan's structure across its lines is
+#: at least this fraction of the structure across the other direction's lines.
+_WORTH_SCANNING = 0.1
+
+
+def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """Blocks where a scan along rows, and where a scan along columns, may cross a stripe steeply.
+
+    A coarse structure tensor of the pre-scan: squared differences of the positive block excess
+    across columns and across rows, summed over ``tile_blocks`` × ``tile_blocks`` blocks. A stripe
+    that runs along columns changes across columns and hardly across rows there, so a column scan
+    would follow it lengthwise: where one sum is below ``_WORTH_SCANNING`` of the other, only the
+    other direction runs (a clean straight stripe is scanned once). Texture and curves make both
+    sums comparable: both run, and the candidates decide (:func:`direction_map`).
+
+    Parameters
+    ----------
+    excess : (hb, wb) float32 array
+        Result of :func:`prescan`.
+    tile_blocks : int
+        Side of the summing window, blocks (odd).
+
+    Returns
+    -------
+    rows, columns : (hb, wb) bool arrays
+    """
+    import cv2
+
+    e = np.maximum(excess, 0.0).astype(np.float32)
+    across_cols = np.zeros_like(e)
+    across_rows = np.zeros_like(e)
+    across_cols[:, :-1] = np.square(np.diff(e, axis=1))
+    across_rows[:-1, :] = np.square(np.diff(e, axis=0))
+    size = (tile_blocks, tile_blocks)
+    sxx = cv2.boxFilter(across_cols, -1, size, normalize=False)
+    syy = cv2.boxFilter(across_rows, -1, size, normalize=False)
+    return sxx >= _WORTH_SCANNING * syy, syy >= _WORTH_SCANNING * sxx
+
+
 def direction_map(rows_weight: np.ndarray, columns_weight: np.ndarray, tile_blocks: int = 9) -> np.ndarray:
     """Per 4 × 4 block, whether the stripe there is best crossed by rows (True) or columns (False).
 

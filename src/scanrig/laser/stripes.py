@@ -23,7 +23,8 @@ from scanrig.errors import InputError
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.image import prepare_image
-from scanrig.laser.peaks import BLOCK, direction_map, find_candidates, line_prominence, prescan, suppress_on_lines
+from scanrig.laser.peaks import (BLOCK, direction_map, find_candidates, line_prominence, prescan, suppress_on_lines,
+                                 worth_scanning)
 from scanrig.laser.traces import empty_table, make_table
 
 DIRECTIONS = ("auto", "rows", "columns")
@@ -106,8 +107,14 @@ def detect_stripe(
         raise InputError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
     li = prepare_image(image, color, dark, roi, saturation_level, noise_sigma)
     excess = prescan(li)
-    alongs = ("rows", "columns") if direction == "auto" else (direction,)
-    found = {along: _prominent(li, along, excess, k_detect, min_separation_px, max_width_px) for along in alongs}
+    if direction == "auto":
+        scan = dict(zip(("rows", "columns"), worth_scanning(excess)))
+    else:
+        scan = {direction: np.ones(excess.shape, bool)}
+    found = {along: _prominent(li, along, np.where(blocks, excess, -1.0), k_detect, min_separation_px, max_width_px)
+             for along, blocks in scan.items() if blocks.any()}
+    for along in ("rows", "columns") if direction == "auto" else ():
+        found.setdefault(along, _LineCandidates.empty())
     if direction == "auto":
         by_rows = direction_map(found["rows"].block_weights(True, excess.shape),
                                 found["columns"].block_weights(False, excess.shape))
@@ -141,6 +148,11 @@ class _LineCandidates:
     run_half: np.ndarray
     prominence: np.ndarray
     noise: np.ndarray
+
+    @classmethod
+    def empty(cls) -> _LineCandidates:
+        z = np.zeros(0, np.int64)
+        return cls(z, z, z, np.zeros(0), np.zeros(0))
 
     def take(self, index) -> _LineCandidates:
         return _LineCandidates(*(a[index] for a in (self.line, self.pos, self.run_half, self.prominence, self.noise)))
