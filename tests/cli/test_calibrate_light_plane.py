@@ -83,10 +83,17 @@ def _fails(root, capsys, args, message):
 def test_light_plane_bad_input(session, tmp_path, capsys):
     root = _copy(session, tmp_path / "a")
     _fails(root, capsys, ["--color", "purple"], "--color must be one of ['grey', 'red', 'green', 'blue'], got 'purple'")
-    # one pose only
-    for path in sorted((root / "light_plane" / "cam0").iterdir())[1:]:
-        path.unlink()
+    (root / "session.toml").write_text('laser_color = "purple"\n')
+    _fails(root, capsys, [], f"laser_color in {root / 'session.toml'} must be one of ['grey', 'red', 'green', "
+                             f"'blue'], got 'purple'")
+    (root / "session.toml").unlink()
     folder = root / "light_plane" / "cam0"
+    shutil.copy(folder / "lp00.png", folder / "lp00.jpg")
+    _fails(root, capsys, [], f"{folder / 'lp00.png'}: two images share the stem 'lp00' (also lp00.jpg)")
+    (folder / "lp00.jpg").unlink()
+    # one pose only
+    for path in sorted(folder.iterdir())[1:]:
+        path.unlink()
     _fails(root, capsys, [], f"{folder}: the stripe on the target was found in 1 usable pose(s); at least 2 are "
                              f"needed (6 or more at different distances and tilts)")
     # the same pose three times (no laser-off twins: each located in its own image)

@@ -67,21 +67,18 @@ def command(
 def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
     """``camera -> {stem: path}`` of the light-plane images, and the laser colour; checked before solving."""
     from scanrig.errors import FileFormatError, InputError
-    from scanrig.io.session import IMAGE_SUFFIXES, Session, natural_key
+    from scanrig.io.session import Session, natural_key
     from scanrig.laser.image import LASER_COLORS
 
     sess = Session(session)
+    source = "--color" if color else f"laser_color in {sess.root / 'session.toml'}"
     color = color or sess.settings().get("laser_color", "grey")
     if color not in LASER_COLORS:
-        raise InputError(f"--color must be one of {list(LASER_COLORS)}, got {color!r}")
+        raise InputError(f"{source} must be one of {list(LASER_COLORS)}, got {color!r}")
     folder = sess.root / "light_plane"
-    images = {}
-    if folder.is_dir():
-        for cam in sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: natural_key(p.name)):
-            paths = sorted((p for p in cam.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
-                           key=lambda p: natural_key(p.name))
-            if paths:
-                images[cam.name] = {p.stem: p for p in paths}
+    cameras = sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: natural_key(p.name)) \
+        if folder.is_dir() else []
+    images = {cam.name: paths for cam in cameras if (paths := _images_by_stem(cam))}
     if not images:
         raise FileFormatError(folder, "no light-plane images (light_plane/<camera>/<shot>.png: the target with "
                                       "the laser stripe across it)")
@@ -89,6 +86,20 @@ def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
     if unknown:
         raise FileFormatError(folder, f"cameras {unknown} have light-plane images but no calibration/ folder")
     return images, color
+
+
+def _images_by_stem(folder: Path) -> dict:
+    """``stem -> path`` of the images in a folder, in natural order."""
+    from scanrig.errors import FileFormatError
+    from scanrig.io.session import IMAGE_SUFFIXES, natural_key
+
+    out = {}
+    for path in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
+        if path.suffix.lower() in IMAGE_SUFFIXES:
+            if path.stem in out:
+                raise FileFormatError(path, f"two images share the stem {path.stem!r} (also {out[path.stem].name})")
+            out[path.stem] = path
+    return out
 
 
 def _light_planes(session: Path, result, images: dict, color: str, seed: int) -> list:
@@ -101,7 +112,7 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     import numpy as np
 
     from scanrig.calibration.pipeline import locate_target, sample_states, shot_index
-    from scanrig.io.session import IMAGE_SUFFIXES, read_image
+    from scanrig.io.session import read_image
     from scanrig.reconstruct.light_plane_session import LightPlanePose, calibrate_light_plane_images
 
     out = []
@@ -109,8 +120,7 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     states = sample_states(result, CALIBRATION_SAMPLES, rng)
     for cam_name, paths in images.items():
         camera = result.rig[cam_name]
-        laser_off = {p.stem: p for p in (Path(session) / "calibration" / cam_name).iterdir()
-                     if p.suffix.lower() in IMAGE_SUFFIXES}
+        laser_off = _images_by_stem(Path(session) / "calibration" / cam_name)
         poses, skipped, solved = [], [], {}
         for stem, path in paths.items():
             index = shot_index(result, stem) if stem in laser_off else None
