@@ -229,12 +229,15 @@ def _spanning_tree(cam_from_target: dict, obs: Observations):
     heap: list = []
 
     def push(node):
+        # Equal point counts are common (whole boards in view): ties go to the lower (node,
+        # parent) so the tree, and so the initial values, depend on the data only. Every node is
+        # pushed once, so (node, parent) is unique and the pose itself is never compared.
         for n, other, pose in by_node.get(node, []):
-            heapq.heappush(heap, (-n, id(pose), other, node, pose))
+            heapq.heappush(heap, (-n, other, node, pose))
 
     push(("s", reference))
     while heap:
-        _, _, node, parent, cam_from_target_pose = heapq.heappop(heap)
+        _, node, parent, cam_from_target_pose = heapq.heappop(heap)
         kind, idx = node
         if (kind == "c" and idx in cam_from_world) or (kind == "s" and idx in world_from_target):
             continue
