@@ -79,7 +79,7 @@ CASES = {
     "report unreadable points": (write_bytes("points.ply", b"garbage"), ["report", "{s}"],
                                  r"points.ply: not a readable PLY file \(line 1: expected 'ply'\)"),
     "demo into a scanned session": (no_change, ["demo", "--out", "{s}", "--quick"],
-                                    r"already holds a scan; give a new --out folder or delete it"),
+                                    r"is not empty \(it holds .*\) and scanrig demo would overwrite files there"),
     "demo unknown mode": (no_change, ["demo", "--out", "{s}/demo", "--mode", "blob"],
                           r"mode must be one of \('spot', 'stripe'\), got 'blob'"),
 }

@@ -9,7 +9,7 @@ import typer
 
 
 def command(
-    out: Annotated[Path, typer.Option(help="Session folder to write (must not hold a scan yet).")] = Path(
+    out: Annotated[Path, typer.Option(help="Session folder to write (created if missing; refused if not empty).")] = Path(
         "scanrig-demo"),
     mode: Annotated[str, typer.Option(help="Laser mode: spot or stripe.")] = "spot",
     seed: Annotated[int, typer.Option(help="Seed of every random choice; recorded in the outputs.")] = 0,
@@ -23,6 +23,7 @@ def command(
     Writes a complete session (calibration and scan images, rig.toml, traces.parquet, points.ply,
     surface.ply, mesh.ply, report.html, truth/) and prints a summary with the accuracy against the
     simulator's truth. A stage that cannot run says so in the table. Exit status 1 if a stage failed.
+    A folder that is not empty is refused (exit status 2): the demo writes a whole new session.
 
     Example: scanrig demo --out demo_run --quick --seed 1
     """
@@ -34,7 +35,9 @@ def command(
 
     from scanrig.demo import run_demo
     from scanrig.errors import ScanrigError
+    from scanrig.io.session import check_new_session
 
+    check_new_session(out, "scanrig demo", force=False, can_force=False)
     console = Console()
     with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=console) as bar:

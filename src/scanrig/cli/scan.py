@@ -45,6 +45,7 @@ def command(
     from rich.progress import Progress
 
     from scanrig.errors import InputError
+    from scanrig.io.rig_file import load_rig, save_rig
     from scanrig.io.session import Session
     from scanrig.reconstruct.points import write_points
     from scanrig.scan.loop import GRAB_TIMEOUT_S, run_scan
@@ -59,7 +60,6 @@ def command(
     given = {"budget": budget, "spacing_mm": spacing_mm, "roi_mm": roi_mm, "seed": seed}
     source = ({"sim": sim, "sim_scale": sim_scale, "n_cameras": n_cameras} if sim else
               {"replay": str(replay)} if replay else {"camera": list(camera), "gcode": gcode, "head_mm": head_mm})
-    session.mkdir(parents=True, exist_ok=True)
     if resume:
         settings = read_state(session).config
         if settings.get("source") != source:
@@ -76,6 +76,10 @@ def command(
         settings["planner"] = PlannerConfig(spacing_m=settings["spacing_mm"] / 1e3, **planner_defaults).to_dict()
     config = PlannerConfig.from_dict(settings["planner"])
     store = ScanStore.open(session) if resume else ScanStore.create(session, cameras.names, settings)
+    if sim is not None and not (session / "rig.toml").exists():   # only once the store accepted the folder
+        save_rig(calibrated, session / "rig.toml",
+                 comments=(f"true cameras of the simulated scene {sim!r} (no calibration)",))
+        calibrated = load_rig(session / "rig.toml")   # as a resumed scan will read it
     process = SpotProcessor(calibrated, color=settings["laser_color"], dark=store.dark_paths())
     rng = np.random.default_rng(settings["seed"])
     with make_executor(scheduler, workers) as executor, Progress(transient=True) as bar:
@@ -105,7 +109,7 @@ def _rig(session, sim, replay, camera, gcode, head_mm, n_cameras, sim_scale, set
     import numpy as np
 
     from scanrig.errors import InputError
-    from scanrig.io.rig_file import load_rig, save_rig
+    from scanrig.io.rig_file import load_rig
     from scanrig.io.session import Session
 
     roi = _roi(settings["roi_mm"])
@@ -116,12 +120,11 @@ def _rig(session, sim, replay, camera, gcode, head_mm, n_cameras, sim_scale, set
         scene = load_scene(sim)
         rig = scene_rig(scene, n_cameras, sim_scale)
         rig_path = session / "rig.toml"
-        if not rig_path.exists():
-            save_rig(rig, rig_path, comments=(f"true cameras of the simulated scene {sim!r} (no calibration)",))
         roi = scene_roi(scene) if roi is None else roi
         frames = SeededFrames(VirtualRig(scene, rig, np.random.default_rng(settings["seed"])), settings["seed"],
                               _n_grabbed(session) if resume else 0)
-        return frames, frames, load_rig(rig_path), _defaults(roi, laser_stations(scene)), LASER_COLOR
+        calibrated = load_rig(rig_path) if rig_path.exists() else rig
+        return frames, frames, calibrated, _defaults(roi, laser_stations(scene)), LASER_COLOR
     if replay is not None:
         from scanrig.scan.replay import ReplayRig
         from scanrig.scan.store import read_state

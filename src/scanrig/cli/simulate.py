@@ -9,7 +9,7 @@ import typer
 
 
 def command(
-    out: Annotated[Path, typer.Argument(help="Session folder to write (created if missing).")],
+    out: Annotated[Path, typer.Argument(help="Session folder to write (created if missing; refused if not empty).")],
     scene: Annotated[str, typer.Option(help="Built-in scene name or a scene .toml file.")] = "default",
     cameras: Annotated[int, typer.Option(min=1, max=8, help="Number of cameras of the default rig.")] = 3,
     mode: Annotated[str, typer.Option(help="Laser mode: spot or stripe.")] = "spot",
@@ -24,12 +24,15 @@ def command(
         help="arc: --cameras cameras on an arc, the laser swept by a pan-tilt head. turntable: one camera and a "
              "fixed line laser, the object turning by 360/--frames degrees per frame (use --scene turntable; "
              "writes scan/object_poses.csv; --cameras and --mode do not apply).")] = "arc",
+    force: Annotated[bool, typer.Option(
+        "--force", help="Write into a non-empty folder: replace the files simulate writes, delete nothing.")] = False,
 ):
     """Simulate a multi-camera laser session (images + truth/) from a virtual rig.
 
     Writes scan/<camera>/<frame>.png, calibration/<camera>/<shot>.png, target.toml, session.toml
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
-    identical files. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
+    identical files. A folder that is not empty is refused unless --force is given; --force
+    replaces only the files simulate writes and names the files it kept. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
     fixed laser sheet, scan/object_poses.csv, light_plane/cam0/<shot>.png (every calibration pose
     with the laser on), truth/light_plane.toml and meshes in the object frame.
     A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
@@ -46,6 +49,7 @@ def command(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from scanrig.errors import InputError
+    from scanrig.io.session import check_new_session, kept_files
     from scanrig.sim.session_writer import simulate_session
 
     if mode not in ("spot", "stripe"):
@@ -55,6 +59,7 @@ def command(
     if rig == "turntable" and light_plane_shots:
         raise InputError("--light-plane-shots is for --rig arc; --rig turntable photographs every calibration "
                          "pose of the cube with the laser on as well (light_plane/cam0/<shot>)")
+    existing = check_new_session(out, "scanrig simulate", force)
     provenance = {"seed": seed, "command": shlex.join(["scanrig", *sys.argv[1:]])}
     with Progress(TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeRemainingColumn()) as bar:
@@ -78,3 +83,19 @@ def command(
                              target_kind=target, light_plane_shots=light_plane_shots, workers=workers,
                              progress=progress, provenance=provenance)
     typer.echo(f"wrote {out} ({frames} frames, {cameras} cameras, seed {seed})")
+    if existing:
+        typer.echo(_force_summary(out, existing, kept_files(existing)))
+
+
+#: Kept files named after a --force run.
+LISTED_KEPT = 5
+
+
+def _force_summary(out: Path, existing: dict, kept: list[Path]) -> str:
+    """What --force did to the files that were there before: how many replaced, which kept."""
+    text = f"--force: replaced {len(existing) - len(kept)} of the {len(existing)} files that were in {out}"
+    if not kept:
+        return text
+    shown = ", ".join(str(p.relative_to(out)) for p in kept[:LISTED_KEPT])
+    more = f" and {len(kept) - LISTED_KEPT} more" if len(kept) > LISTED_KEPT else ""
+    return f"{text}; kept {len(kept)} it does not write: {shown}{more}"

@@ -157,6 +157,93 @@ class Session:
         return folder
 
 
+def session_file(path: str | Path, name: str, producer: str) -> Path:
+    """A product file given as itself or as the session folder that holds it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file, or a session folder.
+    name : str
+        The product's file name in a session folder (``points.ply``, ``rig.toml`` ...).
+    producer : str
+        The verb that writes it, named in the error (``scanrig reconstruct``).
+
+    Returns
+    -------
+    Path
+        ``path`` itself, or ``path / name`` for a folder.
+
+    Raises
+    ------
+    FileFormatError
+        If ``path`` is a folder without ``name``.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        return path
+    if not (path / name).is_file():
+        raise FileFormatError(path, f"session folder holds no {name} ({producer} writes it)")
+    return path / name
+
+
+#: Existing entries named when a verb refuses to write a new session into a non-empty folder.
+LISTED_ENTRIES = 4
+
+
+def check_new_session(root: str | Path, verb: str, force: bool, *, can_force: bool = True
+                      ) -> dict[Path, tuple[int, int]]:
+    """Refuse to write a new session into a folder that already holds something, unless forced.
+
+    Parameters
+    ----------
+    root : str or Path
+        The session folder to create (it may exist and be empty).
+    verb : str
+        The command that writes it, for the message (``scanrig simulate``).
+    force : bool
+        Write anyway (the command then replaces the files it writes and deletes nothing).
+    can_force : bool
+        The command has a ``--force`` option, which the refusal then suggests.
+
+    Returns
+    -------
+    dict
+        ``path -> (inode, mtime_ns)`` of every file already below ``root`` (empty for a new
+        folder); :func:`kept_files` tells afterwards which of them the command did not replace.
+
+    Raises
+    ------
+    InputError
+        If ``root`` is a file, or a non-empty folder and ``force`` is false; nothing is written.
+    """
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise InputError(f"{root}: output session folder is an existing file")
+    if not root.is_dir():
+        return {}
+    entries = sorted((p.name + "/" if p.is_dir() else p.name for p in root.iterdir()), key=natural_key)
+    if entries and not force:
+        shown = ", ".join(entries[:LISTED_ENTRIES])
+        more = f" and {len(entries) - LISTED_ENTRIES} more" if len(entries) > LISTED_ENTRIES else ""
+        hint = ", or --force to replace the files it writes (nothing is deleted)" if can_force else ""
+        raise InputError(f"{root} is not empty (it holds {shown}{more}) and {verb} would overwrite files there; "
+                         f"give a new or empty folder{hint}")
+    return {p: _stamp(p) for p in root.rglob("*") if p.is_file()}
+
+
+def kept_files(before: dict[Path, tuple[int, int]]) -> list[Path]:
+    """The files of :func:`check_new_session`'s snapshot that are still there, unchanged."""
+    return sorted((p for p, stamp in before.items() if p.is_file() and _stamp(p) == stamp),
+                  key=lambda p: natural_key(str(p)))
+
+
+def _stamp(path: Path) -> tuple[int, int]:
+    """Inode and modification time: an atomic replacement (a new file renamed over) changes both."""
+    st = path.stat()
+    return st.st_ino, st.st_mtime_ns
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an 8- or 16-bit image as stored (grey ``(H, W)`` or colour ``(H, W, 3)`` in RGB order).
 
