@@ -113,7 +113,7 @@ def test_simulate_design_scan_bad_input(good_session, capsys, case):
 USAGE = {
     "reconstruct --gate 2": (["reconstruct", "{s}", "--gate", "2"], r"--gate"),
     "reconstruct --sigma-floor-px -1": (["reconstruct", "{s}", "--sigma-floor-px", "-1"], r"--sigma-floor-px"),
-    "evaluate without --truth": (["evaluate", "{s}/points.ply"], r"--truth"),
+    "evaluate --outlier-mm -1": (["evaluate", "{s}/points.ply", "--outlier-mm", "-1"], r"--outlier-mm"),
     "simulate --cameras 9": (["simulate", "{s}/out", "--cameras", "9"], r"--cameras"),
     "detect --workers abc": (["detect", "{s}", "--workers", "abc"], r"--workers"),
     "unknown verb": (["detekt", "{s}"], r"detekt"),

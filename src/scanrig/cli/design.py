@@ -22,7 +22,7 @@ def command(
     spec: Annotated[Path | None, typer.Option(
         "--spec", help="Design TOML: cameras, mounting region, laser, target.")] = None,
     rig: Annotated[Path | None, typer.Option(
-        "--rig", help="Analyse this rig.toml instead of designing one.")] = None,
+        "--rig", help="Analyse this rig.toml (or a session folder's) instead of designing one.")] = None,
     ring: Annotated[bool, typer.Option(
         "--ring/--no-ring", help="Also analyse a symmetric ring for comparison.")] = True,
     allow_open: Annotated[bool, typer.Option("--allow-open", help="Accept a one-sided mesh (sheet, partial scan) "
@@ -49,6 +49,7 @@ def command(
     from scanrig.design.spec import DesignSpec
     from scanrig.errors import FileFormatError, InputError
     from scanrig.io.rig_file import load_rig
+    from scanrig.io.session import session_file
 
     if (mesh is None) == (scene is None):
         raise InputError("give exactly one of --mesh FILE or --scene NAME")
@@ -65,7 +66,8 @@ def command(
                   "object": name, "seed": seed}
     console = Console(stderr=True)
     if rig is not None:
-        design = analyze_existing(obj, load_rig(rig), design_spec, mesh_name=name, occluders=occluders)
+        existing = load_rig(session_file(rig, "rig.toml", "scanrig calibrate"))
+        design = analyze_existing(obj, existing, design_spec, mesh_name=name, occluders=occluders)
     else:
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task("candidate cameras", total=None)

@@ -9,7 +9,8 @@ import typer
 
 
 def command(
-    points: Annotated[Path, typer.Argument(help="Input PLY; its vertices need x, y, z (float32 or float64), in metres.")],
+    points: Annotated[Path, typer.Argument(help="Input PLY (its vertices need x, y, z, float32 or float64, in "
+                                                "metres), or a session folder: its points.ply.")],
     q: Annotated[float, typer.Option("--q", help="Tolerated fraction of bad data, in (0, 0.5].")] = 0.25,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (recorded in the outputs).")] = 0,
     device: Annotated[str, typer.Option("--device", help="Torch device: cpu, cuda or auto.")] = "cpu",
@@ -19,10 +20,10 @@ def command(
 ):
     """Reject gross errors and denoise a point cloud with a robust neural surface fit.
 
-    Writes, beside the input, surface.ply (one vertex per input point, in input order: x, y, z
+    Writes, beside the input (in the session folder when given one), surface.ply (one vertex per input point, in input order: x, y, z
     = denoised position, inlier 0/1, score, residual in metres) and mesh.ply (the fitted surface).
 
-    Example: scanrig filter demo_session/points.ply --q 0.25 --seed 1
+    Example: scanrig filter demo_session --q 0.25 --seed 1
     """
     import numpy as np
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -30,6 +31,7 @@ def command(
     from scanrig.errors import InputError
     from scanrig.io.filter_files import write_filter_files
     from scanrig.io.ply import read_points_with_sigma
+    from scanrig.io.session import session_file
     from scanrig.surface.filter import filter_points
     from scanrig.surface.hampel import check_q
     from scanrig.surface.meshing import mesh_from_result
@@ -38,6 +40,7 @@ def command(
     check_q(q)
     if sigma_floor_mm < 0:
         raise InputError(f"--sigma-floor-mm must be >= 0, got {sigma_floor_mm}")
+    points = session_file(points, "points.ply", "scanrig reconstruct")
     xyz, point_sigma = read_points_with_sigma(points)
     if len(xyz) == 0:
         raise InputError(f"{points}: the vertex element is empty")

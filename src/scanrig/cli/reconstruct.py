@@ -10,7 +10,8 @@ import typer
 
 def command(
     session: Annotated[Path, typer.Argument(help="Session folder with rig.toml and traces.parquet.")],
-    rig: Annotated[Optional[Path], typer.Option(help="Calibration to use instead of SESSION/rig.toml.")] = None,
+    rig: Annotated[Optional[Path], typer.Option(
+        help="Calibration to use instead of SESSION/rig.toml: a rig.toml or another session folder.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Output file instead of SESSION/points.ply.")] = None,
     sigma_floor_px: Annotated[float, typer.Option(
         min=0.0, help="Calibration-error floor added in quadrature to every detection's sigma (px).")] = 0.1,
@@ -50,11 +51,13 @@ def command(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from scanrig.errors import InputError
+    from scanrig.io.session import session_file
     from scanrig.reconstruct.pipeline import reconstruct_session
 
     if max_sigma_mm is not None and not (math.isfinite(max_sigma_mm) and max_sigma_mm > 0):
         raise InputError(f"--max-sigma-mm must be a finite number > 0, got {max_sigma_mm}")
 
+    rig = None if rig is None else session_file(rig, "rig.toml", "scanrig calibrate")
     command_line = shlex.join(["scanrig", *sys.argv[1:]])
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), transient=True) as bar:

@@ -10,7 +10,7 @@ import typer
 
 def command(
     action: Annotated[str, typer.Argument(help="What to do: 'print' writes true-scale SVG files.")],
-    target_file: Annotated[Path, typer.Argument(help="The target.toml to read.")],
+    target_file: Annotated[Path, typer.Argument(help="The target.toml to read, or a session folder: its target.")],
     out: Annotated[Path, typer.Option("--out", help="Folder for the print files (created if absent).")] = Path("."),
 ):
     """Write print-ready SVG files (true scale, millimetres) for a target.toml.
@@ -21,6 +21,7 @@ def command(
     Example: scanrig target print demo_session/target.toml --out prints
     """
     from scanrig.errors import InputError
+    from scanrig.io.session import Session
     from scanrig.targets import load_target
     from scanrig.targets.print_files import write_print_files
 
@@ -29,6 +30,6 @@ def command(
     existing = next(p for p in (out, *out.parents) if p.exists())
     if not existing.is_dir():
         raise InputError(f"--out {out}: expected a folder for the print files, but {existing} is a file")
-    target = load_target(target_file)
+    target = load_target(Session(target_file).target_path if target_file.is_dir() else target_file)
     for path in write_print_files(target, out):
         typer.echo(str(path))
