@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
+from scanrig.io.session import read_image
 from scanrig.reconstruct.light_plane import (
     LightPlaneFit,
     fit_light_plane,
@@ -179,12 +180,10 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         images do show, when another colour finds it), fewer than 2 usable poses, all poses in
         one plane.
     """
-    from scanrig.io.session import read_image
-
     used, points, skipped, first = [], [], [], None
     for pose in poses:
-        image = _read_sized(pose.image_path, camera, read_image)
-        dark = None if pose.dark_path is None else _read_sized(pose.dark_path, camera, read_image)
+        image = _read_sized(pose.image_path, camera)
+        dark = None if pose.dark_path is None else _read_sized(pose.dark_path, camera)
         if dark is not None and dark.shape != image.shape:
             raise FileFormatError(pose.dark_path, f"laser-off image is {dark.shape} but its laser-on image "
                                                   f"{pose.image_path.name} is {image.shape}")
@@ -215,7 +214,8 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
     return dataclasses.replace(fit, plane=with_sampled_uncertainty(fit.plane, p_samples)), skipped
 
 
-def _read_sized(path: Path, camera, read_image) -> np.ndarray:
+def _read_sized(path: Path, camera) -> np.ndarray:
+    """An image that must have the camera's size."""
     image = read_image(path)
     if (image.shape[1], image.shape[0]) != (camera.width, camera.height):
         raise FileFormatError(path, f"image is {image.shape[1]}x{image.shape[0]} but camera {camera.name!r} "
