@@ -21,7 +21,8 @@ def unmoved(tmp_path):
     cam = rig.cameras[1]
     p_world = points_in_view(cam, 12, rng)
     uv = cam.project(p_world) + rng.normal(scale=SIGMA_PX, size=(12, 2))
-    rows = [f"p{k},{x!r},{y!r},{z!r},{u!r},{v!r}" for k, ((x, y, z), (u, v)) in enumerate(zip(p_world.tolist(), uv.tolist()))]
+    rows = [f"p{k},{x!r},{y!r},{z!r},{u!r},{v!r}"
+            for k, ((x, y, z), (u, v)) in enumerate(zip(p_world.tolist(), uv.tolist()))]
     (tmp_path / "known.csv").write_text("\n".join(["point,x,y,z,u,v", *rows]) + "\n")
     return tmp_path, cam.name
 

@@ -54,7 +54,8 @@ def test_reconstruct_takes_another_session_as_its_rig(good_session, tmp_path, ca
     assert main(["reconstruct", str(good_session), "--rig", str(other), "--out", str(tmp_path / "a.ply")]) == 0
     assert main(["reconstruct", str(good_session), "--out", str(tmp_path / "b.ply")]) == 0
     assert f"comment rig: {other / 'rig.toml'}\n" in (tmp_path / "a.ply").read_bytes().decode("latin-1")
-    body = [re.sub(rb"comment (command|rig): [^\n]*\n", b"", (tmp_path / name).read_bytes()) for name in ("a.ply", "b.ply")]
+    body = [re.sub(rb"comment (command|rig): [^\n]*\n", b"", (tmp_path / name).read_bytes())
+            for name in ("a.ply", "b.ply")]
     assert body[0] == body[1]
 
 
@@ -76,5 +77,6 @@ def test_a_session_folder_without_the_product_is_named(good_session, capsys, arg
     folder = good_session / "truth" / "meshes" if "--rig" in argv else good_session
     before = snapshot(good_session)
     assert main(_argv(argv, good_session)) == 2
-    assert capsys.readouterr().err.strip() == f"error: {folder}: session folder holds no {product} ({producer} writes it)"
+    expected = f"error: {folder}: session folder holds no {product} ({producer} writes it)"
+    assert capsys.readouterr().err.strip() == expected
     assert snapshot(good_session) == before

@@ -9,8 +9,8 @@ import typer
 
 
 def command(
-    out: Annotated[Path, typer.Option(help="Session folder to write (created if missing; refused if not empty).")] = Path(
-        "scanrig-demo"),
+    out: Annotated[Path, typer.Option(
+        help="Session folder to write (created if missing; refused if not empty).")] = Path("scanrig-demo"),
     mode: Annotated[str, typer.Option(help="Laser mode: spot or stripe.")] = "spot",
     seed: Annotated[int, typer.Option(help="Seed of every random choice; recorded in the outputs.")] = 0,
     frames: Annotated[int | None, typer.Option(

@@ -18,7 +18,7 @@ def command(
     Planar targets give board.svg; the cube gives face0.svg .. face5.svg and cube_net.svg.
     Print at 100 % and check the 50 mm scale bar with a ruler.
 
-    Example: scanrig target print demo_session/target.toml --out prints
+    Example: scanrig target print demo_session --out prints
     """
     from scanrig.errors import InputError
     from scanrig.io.session import Session
