@@ -120,7 +120,7 @@ class NoiseModel:
         return np.sqrt(np.maximum(var, QUANTIZATION_SIGMA**2)).astype(np.float32)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ColourFrames:
     """The raw colour frame (and dark frame) inside the region of interest.
 
@@ -138,6 +138,19 @@ class ColourFrames:
     dark: np.ndarray | None
     laser_channel: int
     clip_level: float
+
+    @functools.cached_property
+    def laser_plane(self) -> np.ndarray:
+        """The laser channel, minus the dark frame's, ``(H, W)`` float32, DN."""
+        plane = self.image[:, :, self.laser_channel].astype(np.float32)
+        if self.dark is not None:
+            plane -= self.dark[:, :, self.laser_channel]
+        return plane
+
+    @functools.cached_property
+    def laser_noise(self) -> float:
+        """Noise σ of :attr:`laser_plane`, DN (:func:`effective_noise`)."""
+        return effective_noise(self.laser_plane)
 
 
 @dataclass(frozen=True)

@@ -227,7 +227,22 @@ def _prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> 
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
     keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
+    if li.colour is not None:
+        keep &= _seen_in_laser_channel(li.colour, rows, line, pos, reach, run_half, k_detect)
     return _LineCandidates(line, pos, run_half, prominence, noise).take(keep)
+
+
+def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -> np.ndarray:
+    """Whether each candidate of a colour frame is a peak of the laser's own channel too.
+
+    A colour difference such as ``red − (green + blue)/2`` has bumps of its own at strong edges of
+    grey texture (JPEG stores colour at half resolution and rings there) that the laser channel
+    does not show: a red laser must rise in red above both flanks by ``k_detect`` of that
+    channel's noise. Clipped candidates are seen by their clipping.
+    """
+    plane = colour.laser_plane if rows else colour.laser_plane.T
+    prominence_dn, _ = line_prominence(plane, line, pos, reach)
+    return (run_half > 0) | (prominence_dn >= k_detect * 3.0 * colour.laser_noise)
 
 
 def _fit_along(li, along, cand: _LineCandidates, max_width_px) -> dict[str, np.ndarray] | None:
