@@ -6,7 +6,8 @@ camera's right, its sheet containing the camera's vertical (y) axis and crossing
 printed target is placed across the sheet at distances of 0.3-0.6 m (farther when the board would
 not fit the image at 0.3 m), tilted 15-30 degrees about the camera's x, y or a diagonal axis in
 turn. Each pose is written twice with the same stem: ``calibration/<camera>/<stem>.png`` with the
-laser off and ``light_plane/<camera>/<stem>.png`` with it on; the true sheet goes to
+laser off and ``light_plane/<camera>/<stem>.png`` with it on (RGB from a colour camera, ``.jpg``
+when it stores JPEG: :mod:`scanrig.sim.colour`); the true sheet goes to
 ``truth/light_plane.toml`` (the format of ``light_plane.toml``, scene frame) and the poses to
 ``truth/light_plane_poses.csv`` (the columns of ``truth/target_poses.csv``).
 """
@@ -21,8 +22,8 @@ from scipy.spatial.transform import Rotation
 from scanrig.errors import InputError
 from scanrig.geometry import RigidTransform
 from scanrig.io.atomic import write_text_atomic
-from scanrig.io.session import write_image
 from scanrig.sim.calibration_shots import calibration_sensor, target_scene
+from scanrig.sim.colour import sensor_rgb, still_frame, write_frame
 from scanrig.sim.laser import BeamPose, trace_laser
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.render import CameraView
@@ -154,12 +155,16 @@ def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.
         scene = target_scene(target, poses[i], room)
         view = CameraView(camera, scene, sensor, ray_table=table)
         off_rng, on_rng = shot_rngs[i].spawn(2)
-        write_image(out / "calibration" / camera.name / f"{stems[i]}.png", sensor.expose(view.background_e, off_rng))
-        laser_e = view.background_e.copy()
+        background_e = view.background_e
+        off = still_frame(background_e, sensor, room.colour, off_rng)
+        write_frame(out / "calibration" / camera.name / stems[i], off, room.colour)
+        laser_e = np.zeros_like(background_e)
         window = view.laser_window(trace_laser(beam, room.laser, scene), on_rng)
         if window is not None:
             laser_e[window.slices] += window.electrons
-        write_image(out / "light_plane" / camera.name / f"{stems[i]}.png", sensor.expose(laser_e, on_rng))
+        on = (sensor.expose(background_e + laser_e, on_rng) if room.colour is None
+              else sensor_rgb(background_e, laser_e, sensor, room.colour, on_rng))
+        write_frame(out / "light_plane" / camera.name / stems[i], on, room.colour)
 
     report = (lambda done: progress("light plane", done, n_shots)) if progress else None
     run_indexed(render_shot, n_shots, workers, report)
