@@ -7,7 +7,11 @@ Modules, bottom to top:
 - :mod:`~scanrig.laser.fit`: pixel-integrated Gaussian models and a Levenberg–Marquardt fit
   vectorised over all candidates at once.
 - :mod:`~scanrig.laser.crb`: the Cramér–Rao bound of the centre, for tests and benchmarks.
-- :mod:`~scanrig.laser.peaks`: candidate finding (strided pre-scan, local maxima, suppression).
+- :mod:`~scanrig.laser.peaks`: candidate finding (strided pre-scan, local maxima, suppression,
+  prominence along a line, scan directions).
+- :mod:`~scanrig.laser.stripe_candidates`: stripe candidates that rise above both flanks, each
+  stripe crossed steeply.
+- :mod:`~scanrig.laser.colour_fit`: clipped traces of colour frames, fitted from every channel.
 - :mod:`~scanrig.laser.spots`, :mod:`~scanrig.laser.stripes`: ``detect_spots`` and
   ``detect_stripe``, one table row per candidate.
 - :mod:`~scanrig.laser.traces`: the ``traces.parquet`` schema, reading and atomic writing.

@@ -60,7 +60,6 @@ def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     (ceil(H/4), ceil(W/4)) float32 array
         Positive where a block holds a pixel above the seed threshold.
     """
-    import cv2
 
     block_max = _block_max(li.signal)
     shape = block_max.shape

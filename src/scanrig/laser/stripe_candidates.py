@@ -1,0 +1,170 @@
+"""Stripe candidates along scan lines: prominent peaks, each stripe crossed steeply.
+
+On every scan line (rows, or columns) every local maximum of the 3 × 3 box sum that passes the
+detection test (:func:`scanrig.laser.peaks.find_candidates`) is a candidate when it also rises
+above *both* flanks (:func:`scanrig.laser.peaks.line_prominence`): texture edges are steps, not
+stripes. Candidates on a clipped run are moved to its middle. Where both directions are scanned,
+each stripe is kept in the direction that crosses it steeply (:func:`crossed_steeply`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanrig.laser.peaks import BLOCK, find_candidates, line_prominence, suppress_on_lines
+
+#: A stripe that moves at most this far along the scan lines from one line to the next (px) is
+#: crossed at 45° or more from lengthwise (see :func:`crossed_steeply`).
+_STEEP_STEP_PX = 1.0
+#: Prominence (noise σ of the box sum) of a candidate kept outside its block's direction.
+_CHAIN_MIN_PROMINENCE = 50.0
+
+
+@dataclass(frozen=True)
+class LineCandidates:
+    """Prominent candidates of one scan direction, in signal coordinates, sorted by (line, pos).
+
+    Attributes
+    ----------
+    line, pos : (n,) int arrays
+        Scan line and position along it (the middle of the clipped run for a clipped seed).
+    run_half : (n,) int array
+        Half-length of the clipped run the candidate sits on, pixels (0 if not clipped).
+    prominence : (n,) float array
+        :func:`~scanrig.laser.peaks.line_prominence` in noise σ of the box sum.
+    noise : (n,) float array
+        Noise σ at the candidate, DN.
+    """
+
+    line: np.ndarray
+    pos: np.ndarray
+    run_half: np.ndarray
+    prominence: np.ndarray
+    noise: np.ndarray
+
+    def take(self, index) -> LineCandidates:
+        return LineCandidates(*(a[index] for a in (self.line, self.pos, self.run_half, self.prominence, self.noise)))
+
+    def block_index(self, rows: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``(block row, block column)`` of each candidate (4 × 4 pixel blocks)."""
+        u, v = (self.pos, self.line) if rows else (self.line, self.pos)
+        return v // BLOCK, u // BLOCK
+
+    def block_weights(self, rows: bool, shape) -> np.ndarray:
+        """Evidence per block that its scan lines cross a stripe, ``shape`` (the pre-scan's), float32:
+        the summed prominence, each divided by the length of its clipped run (a clipped stripe
+        followed lengthwise is a long plateau that still falls at both ends)."""
+        out = np.zeros(shape, np.float32)
+        np.add.at(out, self.block_index(rows), (self.prominence / (1 + 2 * self.run_half)).astype(np.float32))
+        return out
+
+
+def crossed_steeply(cand: LineCandidates, by_rows: np.ndarray, rows: bool) -> np.ndarray:
+    """Keep-mask of the candidates whose scan lines cross their stripe steeply.
+
+    A candidate in a block of its direction (:func:`~scanrig.laser.peaks.direction_map`) stays.
+    So does a strong one (``_CHAIN_MIN_PROMINENCE``) whose stripe these lines follow steeply for
+    five lines, whatever its block: neighbours on the two previous and the two next lines within
+    ``_STEEP_STEP_PX`` per line (a stripe crossed at 45° or more from lengthwise). That follows a
+    kink (a shoulder, a chin) pixel by pixel where a block holds both the steep and the flat part.
+    Noise bumps on a stripe's flank, which one noisy pixel repeats in three neighbouring box sums,
+    do line up now and then, but not strongly.
+    """
+    chained = cand.prominence >= _CHAIN_MIN_PROMINENCE
+    for step in (-2, -1, 1, 2):
+        chained &= _has_neighbour(cand, _STEEP_STEP_PX * abs(step), step)
+    return chained | (by_rows[cand.block_index(rows)] == rows)
+
+
+def _has_neighbour(cand: LineCandidates, reach_px: float, step: int) -> np.ndarray:
+    """Whether each candidate has one on the line ``step`` away within ``reach_px`` along it
+    (candidates sorted by line, then position)."""
+    key = cand.line.astype(np.int64) << 32 | cand.pos.astype(np.int64)
+    reach = int(np.floor(reach_px))
+    line = (cand.line.astype(np.int64) + step) << 32
+    first = np.searchsorted(key, line | np.maximum(cand.pos - reach, 0))
+    return (first < key.size) & (key[np.minimum(first, key.size - 1)] <= line | (cand.pos + reach))
+
+
+#: A peak must rise above its higher flank by at least this fraction of its height above the local
+#: background: a laser crossing falls to the background on both sides, a bump of noise riding on
+#: a bright plateau (shot noise along a stripe followed lengthwise, bright texture) does not.
+_MIN_RELATIVE_PROMINENCE = 0.25
+
+
+def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> LineCandidates:
+    """Local maxima along rows or columns that pass the detection test, rise above both flanks by
+    ``k_detect`` noise σ of the box sum and by ``_MIN_RELATIVE_PROMINENCE`` of their height, and
+    are not suppressed by a stronger neighbour."""
+    cand = find_candidates(li, along, excess, k_detect=k_detect)
+    rows = along == "rows"
+    line, pos = (cand.v, cand.u) if rows else (cand.u, cand.v)
+    order = np.lexsort((pos, line))
+    line, pos, score = line[order], pos[order], cand.score[order]
+    keep = suppress_on_lines(line, pos, score, min_separation_px)
+    line, pos = line[keep], pos[keep]
+    signal = li.signal if rows else li.signal.T
+    run_half = np.zeros(line.size, np.int64)
+    if li.saturated is not None:
+        pos, run_half = _centre_of_saturated_run(li.saturated if rows else li.saturated.T, line, pos,
+                                                 _MAX_RUN_HALF_PX)
+    uv = (pos, line) if rows else (line, pos)
+    noise = li.noise_at(*uv).astype(np.float64)
+    reach = int(np.ceil(3.0 * max_width_px)) + 1 + run_half
+    prominence_dn, height_dn = line_prominence(signal, line, pos, reach)
+    height_dn -= 9.0 * li.background_at(*uv)
+    prominence = prominence_dn / (3.0 * noise)
+    keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
+    if li.colour is not None:
+        keep &= _seen_in_laser_channel(li.colour, rows, line, pos, reach, run_half, k_detect)
+    return LineCandidates(line, pos, run_half, prominence, noise).take(keep)
+
+
+def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -> np.ndarray:
+    """Whether each candidate of a colour frame is a peak of the laser's own channel too.
+
+    A colour difference such as ``red − (green + blue)/2`` has bumps of its own at strong edges of
+    grey texture (JPEG stores colour at half resolution and rings there) that the laser channel
+    does not show: a red laser must rise in red above both flanks by ``k_detect`` of that
+    channel's noise. Clipped candidates are seen by their clipping.
+    """
+    plane = colour.laser_plane if rows else colour.laser_plane.T
+    prominence_dn, _ = line_prominence(plane, line, pos, reach)
+    return (run_half > 0) | (prominence_dn >= k_detect * 3.0 * colour.laser_noise)
+
+
+#: Longest half clipped run followed from a seed, pixels (an over-exposed stripe with its halo
+#: clips over a few tens of pixels at most; a clipped glint or window beyond is no stripe).
+_MAX_RUN_HALF_PX = 32
+
+
+def _centre_of_saturated_run(saturated, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
+    """Seeds that sit on a clipped plateau (found at its end) moved to the plateau's middle, and the
+    plateau's half-length (0 for seeds that are not clipped), followed at most ``reach`` pixels."""
+    offs = np.arange(-reach, reach + 1)
+    idx = np.clip(pos[:, None] + offs, 0, saturated.shape[1] - 1)
+    sat = saturated[line[:, None], idx]
+    right = np.cumprod(sat[:, reach:], axis=1).sum(axis=1)
+    left = np.cumprod(sat[:, reach::-1], axis=1).sum(axis=1)
+    clipped = sat[:, reach]
+    return np.where(clipped, pos + (right - left) // 2, pos), np.where(clipped, (right + left) // 2, 0)
+
+
+def strongest_per_line(line, score, max_per_line) -> np.ndarray:
+    """Keep-mask: the ``max_per_line`` highest scores of each line."""
+    return rank_on_lines(line, score) < max_per_line
+
+
+def rank_on_lines(line, peak) -> np.ndarray:
+    """0 for the brightest peak of each line, 1 for the next, ... (int32)."""
+    if np.all(line[1:] > line[:-1]):  # the usual case: one peak per line, lines in order
+        return np.zeros(line.size, np.int32)
+    order = np.lexsort((-peak, line))
+    sorted_lines = line[order]
+    start = np.r_[0, np.flatnonzero(sorted_lines[1:] != sorted_lines[:-1]) + 1]
+    first = np.repeat(start, np.diff(np.r_[start, line.size]))
+    rank = np.empty(line.size, np.int32)
+    rank[order] = np.arange(line.size) - first
+    return rank
