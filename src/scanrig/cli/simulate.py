@@ -38,7 +38,7 @@ def command(
     A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
     images, .jpg when its jpeg_quality is set.
 
-    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 6 --seed 1
+    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 12 --seed 1
 
     Example: scanrig simulate tt_session --rig turntable --scene turntable --frames 90 --seed 1
     """
@@ -49,7 +49,7 @@ def command(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from scanrig.errors import InputError
-    from scanrig.io.session import check_new_session, kept_files
+    from scanrig.io.session import check_new_session, first_names, kept_files
     from scanrig.sim.session_writer import simulate_session
 
     if mode not in ("spot", "stripe"):
@@ -84,18 +84,7 @@ def command(
                              progress=progress, provenance=provenance)
     typer.echo(f"wrote {out} ({frames} frames, {cameras} cameras, seed {seed})")
     if existing:
-        typer.echo(_force_summary(out, existing, kept_files(existing)))
-
-
-#: Kept files named after a --force run.
-LISTED_KEPT = 5
-
-
-def _force_summary(out: Path, existing: dict, kept: list[Path]) -> str:
-    """What --force did to the files that were there before: how many replaced, which kept."""
-    text = f"--force: replaced {len(existing) - len(kept)} of the {len(existing)} files that were in {out}"
-    if not kept:
-        return text
-    shown = ", ".join(str(p.relative_to(out)) for p in kept[:LISTED_KEPT])
-    more = f" and {len(kept) - LISTED_KEPT} more" if len(kept) > LISTED_KEPT else ""
-    return f"{text}; kept {len(kept)} it does not write: {shown}{more}"
+        kept = kept_files(existing)
+        typer.echo(f"--force: replaced {len(existing) - len(kept)} of the {len(existing)} files that were in {out}"
+                   + (f"; kept {len(kept)} it does not write: {first_names([str(p.relative_to(out)) for p in kept])}"
+                      if kept else ""))

@@ -187,7 +187,7 @@ def session_file(path: str | Path, name: str, producer: str) -> Path:
     return path / name
 
 
-#: Existing entries named when a verb refuses to write a new session into a non-empty folder.
+#: Names a one-line message lists before "and N more" (existing entries, kept files).
 LISTED_ENTRIES = 4
 
 
@@ -224,12 +224,16 @@ def check_new_session(root: str | Path, verb: str, force: bool, *, can_force: bo
         return {}
     entries = sorted((p.name + "/" if p.is_dir() else p.name for p in root.iterdir()), key=natural_key)
     if entries and not force:
-        shown = ", ".join(entries[:LISTED_ENTRIES])
-        more = f" and {len(entries) - LISTED_ENTRIES} more" if len(entries) > LISTED_ENTRIES else ""
         hint = ", or --force to replace the files it writes (nothing is deleted)" if can_force else ""
-        raise InputError(f"{root} is not empty (it holds {shown}{more}) and {verb} would overwrite files there; "
-                         f"give a new or empty folder{hint}")
+        raise InputError(f"{root} is not empty (it holds {first_names(entries)}) and {verb} would overwrite files "
+                         f"there; give a new or empty folder{hint}")
     return {p: _stamp(p) for p in root.rglob("*") if p.is_file()}
+
+
+def first_names(names: list[str], limit: int = LISTED_ENTRIES) -> str:
+    """``"a, b, c, d and 3 more"``: the first ``limit`` names for a one-line message."""
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
 
 
 def kept_files(before: dict[Path, tuple[int, int]]) -> list[Path]:
