@@ -136,7 +136,7 @@ def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera
         # One or two planes fix the focal length only: keep the principal point at the centre.
         flags |= cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2
     try:
-        rms, K, dist, _, _ = cv2.calibrateCamera(planes_obj, planes_img, (width, height), None, None, flags=flags)
+        _, K, dist, _, _ = cv2.calibrateCamera(planes_obj, planes_img, (width, height), None, None, flags=flags)
     except cv2.error as exc:
         raise EstimationError(f"camera {name!r}: homography initialisation failed ({exc.err}); "
                               "add views of the target at several tilts") from None
