@@ -36,7 +36,7 @@ def command(
     writes light_plane.toml (light_plane_<camera>.toml with several such cameras) in the world
     frame of rig.toml. Nothing is written when a step fails.
 
-    Example: scanrig calibrate demo_session --model opencv5
+    Example: scanrig calibrate demo_session --model opencv4
 
     Light-plane example, on a simulated one-camera session (scanrig simulate lp_session --cameras 1
     --frames 1 --no-calibration --target chessboard --light-plane-shots 8):

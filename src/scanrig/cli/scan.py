@@ -39,7 +39,7 @@ def command(
     stopped by a crash, a rig error or a full disk continues with --resume. Points go to
     SESSION/points.ply.
 
-    Example: scanrig scan scan_demo --sim sphere --budget 30 --spacing-mm 20 --seed 1
+    Example: scanrig scan scan_demo --sim sphere --budget 60 --spacing-mm 20 --seed 1
     """
     import numpy as np
     from rich.progress import Progress
