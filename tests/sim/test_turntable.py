@@ -16,7 +16,7 @@ from scanrig.io.session import read_image
 from scanrig.sim.calibration_shots import CALIBRATION_SUPERSAMPLING, calibration_sensor, write_calibration
 from scanrig.sim.library import load_scene
 from scanrig.sim.light_plane_shots import sheet_plane
-from scanrig.sim.turntable import LASER_FILL, turntable_rig, write_light_plane_shots
+from scanrig.sim.turntable import LASER_FILL, turntable_rig, write_laser_on_calibration_poses
 
 #: Frames of the test scan (one every 90 degrees: a wrong object-frame mapping moves points by cm).
 N_FRAMES = 4
@@ -106,7 +106,7 @@ def test_light_plane_shot_shows_the_true_sheet_on_the_cube(tmp_path):
     (tmp_path / "truth").mkdir()
     shots = write_calibration(tmp_path, scene, Rig([rig.camera]), 1, "cube", rng, workers=1)
     assert list(shots) == ["000"] and np.array_equal(shots["000"].as_matrix(), np.eye(4))
-    write_light_plane_shots(tmp_path, scene, rig, shots, rng, workers=1)
+    write_laser_on_calibration_poses(tmp_path, scene, rig, shots, rng, workers=1)
     off = read_image(tmp_path / "calibration" / "cam0" / "000.png").astype(float)
     on = read_image(tmp_path / "light_plane" / "cam0" / "000.png").astype(float)
     sensor = calibration_sensor(scene)

@@ -143,7 +143,7 @@ def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: R
     return view.sensor.expose(electrons, rng), trace
 
 
-def write_light_plane_shots(out: Path, scene: Scene, rig: TurntableRig, shots: dict, rng: np.random.Generator,
+def write_laser_on_calibration_poses(out: Path, scene: Scene, rig: TurntableRig, shots: dict, rng: np.random.Generator,
                             workers: int | None = None, progress: Progress | None = None) -> None:
     """Write ``light_plane/<camera>/<shot>.png``: each calibration pose again, with the laser on.
 
@@ -288,7 +288,7 @@ def simulate_turntable_session(
             raise EstimationError(f"{out}: the camera does not see the cube standing at the world origin (shot 000), "
                                   "so its calibration would not be in the scene's frame of scan/object_poses.csv; "
                                   "aim the camera at the turntable axis (the scene's center_m)")
-        write_light_plane_shots(out, scene, rig, shots, light_rng, workers, progress)
+        write_laser_on_calibration_poses(out, scene, rig, shots, light_rng, workers, progress)
     stems = [f"{i:05d}" for i in range(n_frames)]
     poses = {stem: rig.world_from_object(a) for stem, a in zip(stems, angles)}
     table = PixelRayTable(rig.camera)
