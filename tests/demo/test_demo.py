@@ -58,4 +58,5 @@ def test_settings_and_bad_input(tmp_path, capsys):
     with pytest.raises(InputError, match=re.escape(f"{tmp_path / 'used'} already holds a scan")):
         run_demo(tmp_path / "used")
     assert main(["demo", "--out", str(tmp_path / "used")]) == 2
-    assert "already holds a scan" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'used'} is not empty (it holds scan/) and scanrig demo would overwrite" in err
