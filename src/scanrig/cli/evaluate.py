@@ -31,9 +31,9 @@ def command(
     """
     import numpy as np
 
+    from scanrig.io.session import session_file
     from scanrig.reconstruct.evaluate import distance_statistics, load_truth_surface, save_histogram
     from scanrig.reconstruct.flags import Flag
-    from scanrig.io.session import session_file
     from scanrig.reconstruct.points import read_points
 
     points = session_file(points, "points.ply", "scanrig reconstruct")

@@ -20,8 +20,9 @@ def command(
 ):
     """Reject gross errors and denoise a point cloud with a robust neural surface fit.
 
-    Writes, beside the input (in the session folder when given one), surface.ply (one vertex per input point, in input order: x, y, z
-    = denoised position, inlier 0/1, score, residual in metres) and mesh.ply (the fitted surface).
+    Writes, beside the input (in the session folder when given one), surface.ply (one vertex per
+    input point, in input order: x, y, z = denoised position, inlier 0/1, score, residual in
+    metres) and mesh.ply (the fitted surface).
 
     Example: scanrig filter demo_session --q 0.25 --seed 1
     """
