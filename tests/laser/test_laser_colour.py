@@ -47,7 +47,7 @@ def test_rank0_is_the_beam_centre_with_a_laser_off_frame(seed):
 def test_without_a_laser_off_frame_the_centre_is_as_accurate(seed):
     err, _, _ = _rank0_errors(seed, use_dark=False)
     assert np.nanmedian(np.abs(err)) <= 0.15
-    assert np.mean(np.abs(err) < 0.5) >= 0.85  # measured 0.88-0.94 (seeds 0-5); the acceptance is 0.95, below
+    assert np.mean(np.abs(err) < 0.5) >= 0.85  # measured 0.88-0.95 (seeds 0-5); the acceptance is 0.95, below
 
 
 @pytest.mark.xfail(strict=True, reason="without a laser-off frame, a stripe running along a printed "
