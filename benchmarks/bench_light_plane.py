@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def synthetic(n_seeds: int) -> None:
-    from scanrig.reconstruct.light_plane import calibrate_light_plane
+    from scanrig.reconstruct.light_plane_fit import calibrate_light_plane
     from tests.reconstruct import light_plane_synth as synth
 
     normal_true, offset_true = synth.laser_plane()

@@ -172,7 +172,7 @@ def test_light_plane_ignores_ten_percent_junk(session, tmp_path, capsys):
 
 def test_several_cameras_write_one_file_each(tmp_path):
     from scanrig.cli.calibrate import _write_light_planes
-    from scanrig.reconstruct.light_plane import calibrate_light_plane
+    from scanrig.reconstruct.light_plane_fit import calibrate_light_plane
 
     rng = np.random.default_rng(9)
     planes, pixels, _ = synth.observation(rng)

@@ -9,13 +9,13 @@ from scanrig.io.rig_file import save_rig
 from scanrig.laser.traces import write_traces
 from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.light_plane import (
-    calibrate_light_plane,
     fit_plane,
     fit_plane_robust,
     intersect_stripe_pixels,
     load_light_plane,
     save_light_plane,
 )
+from scanrig.reconstruct.light_plane_fit import calibrate_light_plane
 from scanrig.reconstruct.pipeline import reconstruct_session
 from scanrig.reconstruct.points import read_points
 from tests.reconstruct.synth import height_field, ring_rig, stripe_traces

@@ -11,14 +11,8 @@ import pytest
 import tomli_w
 
 from scanrig.errors import FileFormatError, InputError
-from scanrig.reconstruct.light_plane import (
-    TILT_WARN_DEG,
-    calibrate_light_plane,
-    fit_light_plane,
-    load_light_plane,
-    save_light_plane,
-    with_sampled_uncertainty,
-)
+from scanrig.reconstruct.light_plane import load_light_plane, save_light_plane, with_sampled_uncertainty
+from scanrig.reconstruct.light_plane_fit import TILT_WARN_DEG, calibrate_light_plane, fit_light_plane
 from tests.reconstruct import light_plane_synth as synth
 
 #: The task's accuracy for 6 poses at 0.3-0.6 m: normal within 0.05 deg (the offset is checked

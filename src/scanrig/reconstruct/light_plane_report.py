@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.io.atomic import atomic_write
-from scanrig.reconstruct.light_plane import LightPlaneFit
+from scanrig.reconstruct.light_plane_fit import LightPlaneFit
 
 
 def format_light_plane_summary(fit: LightPlaneFit, camera: str, skipped=()) -> str:

@@ -5,7 +5,7 @@ caller supplies ``world_from_target``), crossed by the fixed laser's stripe. The
 (:func:`scanrig.detect_stripe`, the brightest peak of each scan line) are kept only inside the
 outline of a target board facing the camera (the whole printed board, margins included, its
 edges projected through the camera's distortion); their rays meet that board's plane in 3-D
-points of the light plane, and :func:`scanrig.reconstruct.light_plane.fit_light_plane` fits the
+points of the light plane, and :func:`scanrig.reconstruct.light_plane_fit.fit_light_plane` fits the
 plane to the points of all poses. Light on the floor, the turntable or the wall never enters the
 fit, and a pose whose stripe is not on the target is named and left out. Given calibrations drawn
 from the calibration's covariance, the same pixels are turned into points with each, and the
@@ -22,13 +22,8 @@ import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import read_image
-from scanrig.reconstruct.light_plane import (
-    LightPlaneFit,
-    fit_light_plane,
-    intersect_plane,
-    plane_from,
-    with_sampled_uncertainty,
-)
+from scanrig.reconstruct.light_plane import intersect_plane, plane_from, with_sampled_uncertainty
+from scanrig.reconstruct.light_plane_fit import LightPlaneFit, fit_light_plane
 
 #: A pose with fewer stripe points on the target than this has no usable stripe.
 MIN_POSE_POINTS = 20
