@@ -4,7 +4,7 @@ Runs, in a temporary folder (or ``--keep DIR``)::
 
     scanrig simulate S --rig turntable --scene turntable --frames N --shots K --seed SEED
     scanrig calibrate S --light-plane --no-cross-validate --no-plots
-    scanrig detect S --k-detect 15
+    scanrig detect S --k-detect K      (K = --k-detect, default 15, as the figures in the docs)
     scanrig reconstruct S --light-plane S/light_plane.toml --out S/points_calibrated.ply
     scanrig evaluate S/points_calibrated.ply --truth S/truth
 
@@ -51,6 +51,7 @@ def main() -> None:
     parser.add_argument("--shots", type=int, default=12, help="calibration shots of the cube")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--keep", type=Path, help="write the session here instead of a temporary folder")
+    parser.add_argument("--k-detect", type=float, default=K_DETECT, help="detection threshold, noise sigma")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         session = args.keep or Path(tmp) / "turntable"
@@ -61,7 +62,7 @@ def main() -> None:
                   "true plane": session / "truth" / "light_plane.toml"}
         print("calibrate:", run("calibrate", ["calibrate", str(session), "--light-plane", "--no-cross-validate",
                                               "--no-plots"], timings))
-        print("detect:", run("detect", ["detect", str(session), "--k-detect", str(K_DETECT)], timings))
+        print("detect:", run("detect", ["detect", str(session), "--k-detect", str(args.k_detect)], timings))
         truth = load_truth_surface(session / "truth")
         results = {}
         for label, plane in planes.items():

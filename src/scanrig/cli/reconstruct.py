@@ -77,7 +77,9 @@ def command(
                   f"{summary['n_candidates'] - summary['n_candidates_used']} of {summary['n_candidates']} "
                   f"candidates rejected")
     elif "detections" in summary:
-        detail = f"{summary['detections']} brightest stripe detections intersected with the light plane"
+        detail = (f"{summary['detections'] - summary['detections_isolated']} of {summary['detections']} brightest "
+                  f"stripe detections intersected with the light plane ({summary['detections_isolated']} isolated "
+                  f"from any stripe left out)")
     else:
         detail = (f"{summary['points_multi_view']} multi-view, {summary['points_single_view']} single-view on the "
                   f"light plane; {summary['frames_with_plane']} frames with a plane; "

@@ -22,6 +22,7 @@ from scanrig.reconstruct.points import PointCloud, write_points
 from scanrig.reconstruct.spots import reconstruct_spots
 from scanrig.reconstruct.stripes import reconstruct_stripes
 from scanrig.reconstruct.stripes.precision import split_by_precision
+from scanrig.reconstruct.stripes.views import neighbour_segments, stripe_pieces
 
 
 def check_rig_against_session(rig, session: Session, rig_path: Path) -> None:
@@ -160,12 +161,23 @@ def reconstruct_session(
     return summary
 
 
+#: In classic mode a line's brightest candidate is kept only on a piece of stripe of at least this
+#: many lines: one camera cannot vote, and a line the laser does not cross still has a brightest
+#: candidate (noise, texture), which the plane would place in space.
+MIN_PIECE_LINES = 5
+
+
 def _classic_single_camera(camera, plane, table, frames, sigma_floor_px):
-    """Stripe points of one camera intersected with its calibrated light plane (brightest per line)."""
+    """Stripe points of one camera intersected with its calibrated light plane (the brightest of
+    each line, on pieces of stripe of ``MIN_PIECE_LINES`` lines or more)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
     rows = table.filter(pc.and_(pc.equal(table.column("camera"), camera.name), pc.equal(table.column("rank"), 0)))
+    n_detections = rows.num_rows
+    frame = pc.index_in(rows.column("frame"), value_set=pa.array(frames, pa.string())).to_numpy(zero_copy_only=False)
+    on_piece = _on_long_pieces(rows, frame)
+    rows, frame = rows.filter(pa.array(on_piece)), frame[on_piece]
 
     def col(name):
         return rows.column(name).to_numpy()
@@ -177,12 +189,27 @@ def _classic_single_camera(camera, plane, table, frames, sigma_floor_px):
     cov += np.eye(2) * sigma_floor_px**2
     p, cov_p = intersect_stripe_pixels(camera, q, cov, plane)
     ok = np.all(np.isfinite(p), axis=1)
-    frame = pc.index_in(rows.column("frame"), value_set=pa.array(frames, pa.string())).to_numpy(zero_copy_only=False)
     flags = np.full(ok.sum(), Flag.CALIBRATED_PLANE, np.uint16)
     flags[col("saturated")[ok]] |= np.uint16(Flag.SATURATED)
     cloud = PointCloud(p[ok], sigma_from_covariance(cov_p[ok]), np.ones(ok.sum()), np.full(ok.sum(), np.nan),
                        frame[ok], flags)
-    return cloud, {"frames": len(frames), "points": len(cloud), "detections": len(q)}
+    return cloud, {"frames": len(frames), "points": len(cloud), "detections": n_detections,
+                   "detections_isolated": n_detections - len(q)}
+
+
+def _on_long_pieces(rows, frame: np.ndarray) -> np.ndarray:
+    """Whether each detection lies on a piece of stripe of at least ``MIN_PIECE_LINES`` detections in
+    its frame (:func:`~scanrig.reconstruct.stripes.views.stripe_pieces`)."""
+    q = np.c_[rows.column("u").to_numpy(), rows.column("v").to_numpy()]
+    line = rows.column("line").to_numpy()
+    along_rows = q[:, 1] == line
+    keep = np.zeros(len(q), bool)
+    order = np.argsort(frame, kind="stable")
+    bounds = np.flatnonzero(np.diff(frame[order])) + 1
+    for index in np.split(order, bounds):  # one frame at a time: a loop over frames, not points
+        piece = stripe_pieces(len(index), neighbour_segments(q[index], line[index], along_rows[index]))
+        keep[index] = np.bincount(piece)[piece] >= MIN_PIECE_LINES
+    return keep
 
 
 def _to_object_frame(cloud: PointCloud, frames, poses: dict, poses_path: Path) -> PointCloud:

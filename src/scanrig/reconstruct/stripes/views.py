@@ -17,6 +17,28 @@ NEIGHBOUR_PX = 3.0
 TANGENT_STEP_PX = 2.0
 
 
+def neighbour_segments(q: np.ndarray, line: np.ndarray, rows: np.ndarray,
+                       usable: np.ndarray | None = None) -> np.ndarray:
+    """Pairs ``(m, 2)`` of detections that are neighbours on a stripe: closer than
+    ``NEIGHBOUR_PX`` and not on the same scan line (``line`` with ``rows`` telling rows from
+    columns), both ``usable`` (default: all)."""
+    n = len(q)
+    pairs = cKDTree(q).query_pairs(NEIGHBOUR_PX, output_type="ndarray") if n > 1 else np.zeros((0, 2), int)
+    keep = (line[pairs[:, 0]] != line[pairs[:, 1]]) | (rows[pairs[:, 0]] != rows[pairs[:, 1]])
+    if usable is not None:
+        keep &= usable[pairs[:, 0]] & usable[pairs[:, 1]]
+    return pairs[keep]
+
+
+def stripe_pieces(n: int, segments: np.ndarray) -> np.ndarray:
+    """Label ``(n,)`` of the piece of stripe each detection belongs to: the connected components of
+    the neighbour graph ``segments``."""
+    if n == 0:
+        return np.zeros(0, int)
+    graph = coo_matrix((np.ones(len(segments)), (segments[:, 0], segments[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 class StripeView:
     """One camera's stripe detections in one frame: rays, segments, tangents and across-noise."""
 
@@ -33,10 +55,7 @@ class StripeView:
         self.xh = np.c_[xy, np.ones(n)]  # homogeneous normalised coordinates
         self.dirs = d_cam @ R  # world directions (R.T applied to row vectors)
         finite = np.all(np.isfinite(xy), axis=1)
-        pairs = (cKDTree(q).query_pairs(NEIGHBOUR_PX, output_type="ndarray") if n > 1
-                 else np.zeros((0, 2), int))
-        same_line = (line[pairs[:, 0]] == line[pairs[:, 1]]) & (rows[pairs[:, 0]] == rows[pairs[:, 1]])
-        self.segments = pairs[~same_line & finite[pairs[:, 0]] & finite[pairs[:, 1]]]
+        self.segments = neighbour_segments(q, line, rows, finite)
         # Local tangent: principal direction of the differences to the neighbours.
         s0, s1 = self.segments[:, 0], self.segments[:, 1]
         diff = q[s1] - q[s0]
@@ -50,9 +69,7 @@ class StripeView:
         self.has_tangent = finite & (np.bincount(self.segments.ravel(), minlength=n) > 0)
         self.var_perp = np.einsum("ni,nij,nj->n", self.normal, cov, self.normal)
         self._lines = None
-        # pieces of stripe: connected components of the neighbour graph
-        graph = coo_matrix((np.ones(len(self.segments)), (self.segments[:, 0], self.segments[:, 1])), shape=(n, n))
-        _, self.piece = connected_components(graph, directed=False) if n else (0, np.zeros(0, int))
+        self.piece = stripe_pieces(n, self.segments)
 
     def inflate(self, extra_var_px2: np.ndarray) -> None:
         """Add an isotropic variance (px², one per detection) to the covariances, in place."""
