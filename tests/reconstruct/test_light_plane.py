@@ -116,6 +116,28 @@ def test_classic_single_camera_mode(tmp_path):
     assert np.all(cloud.flags & Flag.CALIBRATED_PLANE) and np.all(cloud.n_views == 1)
 
 
+def test_classic_mode_leaves_out_detections_isolated_from_any_stripe(tmp_path):
+    """A line the laser does not cross still has a brightest candidate: three such, each alone on
+    its line, are left out and counted; the stripe's points all stay."""
+    import pyarrow as pa
+
+    rng = np.random.default_rng(76)
+    cam = ring_rig(height_m=0.6).cameras[0]
+    save_rig(Rig([cam]), tmp_path / "rig.toml")
+    stripe = stripe_traces(Rig([cam]), [0.05], rng, 0.2)
+    lines = stripe["line"].to_numpy()
+    free = np.setdiff1d(np.arange(lines.max() + 40), lines)[[0, 10, 20]]  # rows the stripe does not reach
+    junk = stripe.slice(0, 3)
+    junk = junk.set_column(junk.schema.get_field_index("line"), "line", pa.array(free.astype(np.int32)))
+    junk = junk.set_column(junk.schema.get_field_index("v"), "v", pa.array(free.astype(float)))
+    write_traces(tmp_path / "traces.parquet", pa.concat_tables([stripe, junk]), {})
+    p, _ = _plane_points(rng, 100, [1.0, 0.0, 0.0], 0.05, 0.0)
+    save_light_plane(tmp_path / "light_plane.toml", fit_plane(p), cam.name)
+    summary = reconstruct_session(tmp_path, light_plane_path=tmp_path / "light_plane.toml")
+    assert summary["detections_isolated"] == 3
+    assert summary["points"] == stripe.num_rows
+
+
 def test_light_plane_file_errors(tmp_path):
     path = tmp_path / "light_plane.toml"
     path.write_text('format_version = 1\nunits = "m"\ncamera = "cam0"\n')
