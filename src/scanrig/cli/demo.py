@@ -30,33 +30,18 @@ def command(
     import time
 
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.demo import run_demo
     from scanrig.errors import ScanrigError
     from scanrig.io.session import check_new_session
 
     check_new_session(out, "scanrig demo", force=False, can_force=False)
     console = Console()
-    with Progress(TextColumn("{task.description:<22}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), console=console) as bar:
-        tasks: dict[str, int] = {}
-
-        def finish_others(stage: str) -> None:
-            for name, task in tasks.items():
-                if name != stage:   # a stage is over once the next one reports
-                    bar.update(task, total=1, completed=1)
-
-        def progress(stage: str, done: int, total: int | None) -> None:
-            if stage not in tasks:
-                finish_others(stage)
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done, total=total)
-
+    with stage_progress(console) as progress:
         start = time.perf_counter()
         summary = run_demo(out, mode=mode, seed=seed, quick=quick, frames=frames, workers=workers, progress=progress)
-        finish_others("")
     stages = Table(title=f"scanrig demo: {out}")
     for column in ("stage", "status", "time (s)", "result"):
         stages.add_column(column)

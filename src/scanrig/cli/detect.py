@@ -29,8 +29,7 @@ def command(
 
     Example: scanrig detect demo_session --mode spot --color red --workers 2 --overlay 00000
     """
-    from rich.progress import Progress
-
+    from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
     from scanrig.io.session import Session
     from scanrig.laser.overlay import write_overlays
@@ -46,10 +45,10 @@ def command(
             raise InputError(f"--roi must be four integers u0,v0,u1,v1, got {roi!r}")
     sess = Session(session)
     options = options_from_session(sess, mode, color, roi_box, k_detect)
-    with Progress(transient=True) as bar:
-        task = bar.add_task(f"detecting {options.mode}s", total=None)
+    stage = f"detecting {options.mode}s"
+    with stage_progress() as progress:
         table = detect_session(sess.root, options, workers=workers, resume=resume,
-                               progress=lambda done, total: bar.update(task, completed=done, total=total))
+                               progress=lambda done, total: progress(stage, done, total))
     n_frames = sum(len(sess.image_paths("scan", cam)) for cam in sess.camera_names("scan"))
     n_with = len(set(zip(table.column("camera").to_pylist(), table.column("frame").to_pylist())))
     typer.echo(f"{len(table)} candidates in {n_frames} camera frames ({n_with} with candidates) "

@@ -29,8 +29,6 @@ def command(
 
     Example: scanrig evaluate demo_session
     """
-    import numpy as np
-
     from scanrig.io.session import session_file
     from scanrig.reconstruct.evaluate import distance_statistics, load_truth_surface, save_histogram
     from scanrig.reconstruct.flags import Flag

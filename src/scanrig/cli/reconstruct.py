@@ -48,8 +48,7 @@ def command(
     import shlex
     import sys
 
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
     from scanrig.io.session import session_file
     from scanrig.reconstruct.pipeline import reconstruct_session
@@ -59,16 +58,14 @@ def command(
 
     rig = None if rig is None else session_file(rig, "rig.toml", "scanrig calibrate")
     command_line = shlex.join(["scanrig", *sys.argv[1:]])
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), transient=True) as bar:
-        task = bar.add_task("reconstructing", total=None)
+    with stage_progress() as progress:
         summary = reconstruct_session(session, rig_path=rig, out_path=out, sigma_floor_px=sigma_floor_px,
                                       gate_probability=gate, min_angle_deg=min_angle_deg,
                                       keep_ambiguous=keep_ambiguous, single_view=single_view, seed=seed,
                                       light_plane_path=light_plane,
                                       max_sigma_m=None if max_sigma_mm is None else max_sigma_mm * 1e-3,
                                       comments=(f"command: {command_line}",),
-                                      progress=lambda done, total: bar.update(task, completed=done, total=total))
+                                      progress=lambda done, total: progress("reconstructing", done, total))
     head = f"{summary['points']} points from {summary['frames']} frames ({summary['mode']}, seed {seed}): "
     if summary["mode"] == "spot":
         detail = (f"{summary['frames_matched']} matched, {summary['frames_ambiguous']} ambiguous (flagged), "

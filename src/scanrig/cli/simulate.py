@@ -46,8 +46,8 @@ def command(
     import sys
 
     import numpy as np
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
     from scanrig.io.session import check_new_session, first_names, kept_files
     from scanrig.sim.session_writer import simulate_session
@@ -61,15 +61,7 @@ def command(
                          "pose of the cube with the laser on as well (light_plane/cam0/<shot>)")
     existing = check_new_session(out, "scanrig simulate", force)
     provenance = {"seed": seed, "command": shlex.join(["scanrig", *sys.argv[1:]])}
-    with Progress(TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeRemainingColumn()) as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done)
-
+    with stage_progress() as progress:
         if rig == "turntable":
             from scanrig.sim.turntable import simulate_turntable_session
 
