@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import shlex
 import sys
 from pathlib import Path
@@ -42,17 +43,16 @@ def command(
     --frames 1 --no-calibration --target chessboard --light-plane-shots 8):
     scanrig calibrate lp_session --light-plane
     """
-    from rich.progress import Progress
-
     from scanrig.calibration.pipeline import solve_session, write_session_outputs
     from scanrig.calibration.summary import format_summary
+    from scanrig.cli.progress import stage_progress
 
     command_line = "scanrig " + shlex.join(sys.argv[1:])
     laser = _light_plane_inputs(session, color) if light_plane else None
-    with Progress(transient=True) as progress:
+    with stage_progress() as progress:
         def factory(total):
-            task = progress.add_task("detecting target", total=total)
-            return lambda: progress.advance(task)
+            done = itertools.count(1)
+            return lambda: progress("detecting target", next(done), total)
 
         result, obs = solve_session(session, model=model, corners_csv=corners, cross_validate=cross_validate,
                                     progress_factory=factory)

@@ -27,8 +27,8 @@ def command(
     Example: scanrig filter demo_session --q 0.25 --seed 1
     """
     import numpy as np
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
     from scanrig.io.filter_files import write_filter_files
     from scanrig.io.ply import read_points_with_sigma
@@ -46,9 +46,8 @@ def command(
     if len(xyz) == 0:
         raise InputError(f"{points}: the vertex element is empty")
     settings = FitSettings(q=q, architecture=architecture, depth=1 if architecture == "ridge" else 2)
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  transient=True) as progress:
-        progress.add_task(f"filtering {len(xyz)} points", total=None)
+    with stage_progress() as progress:
+        progress(f"filtering {len(xyz)} points", 0, None)
         result = filter_points(xyz, rng=np.random.default_rng(seed), q=q, settings=settings,
                                max_chart_points=max_chart_points, sigma_floor=sigma_floor_mm * 1e-3,
                                device=device, point_sigma=point_sigma)

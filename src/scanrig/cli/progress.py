@@ -86,8 +86,9 @@ class _PlainLines:
         """End the current stage with its line."""
         if self.stage is not None:
             now = time.monotonic()
-            typer.echo(f"{self.stage}: done, {self.done}" + ("" if self.total is None else f"/{self.total}")
-                       + f" in {now - self.started:.1f} s")
+            counts = ("" if self.total is None and not self.done
+                      else f" {self.done}" + ("" if self.total is None else f"/{self.total}"))
+            typer.echo(f"{self.stage}: done{',' if counts else ''}{counts} in {now - self.started:.1f} s")
             self.stage, self.started = None, now
 
     def _counts(self, now: float) -> str:
