@@ -46,3 +46,20 @@ def test_simulate_into_a_log_prints_its_stages_with_counts(tmp_path, capsys):
     out = capsys.readouterr().out.splitlines()
     assert "frames: started, 2 to do" in out
     assert any(re.fullmatch(r"frames: done, 2/2 in \d+\.\d s", line) for line in out)
+
+
+def test_bars_on_a_terminal_end_complete_with_their_counts():
+    """On a terminal: one bar per stage, each shown complete with its count once the next stage (or
+    the command) is done; a stage of unknown total is never shown as 0/None."""
+    import io
+
+    from rich.console import Console
+
+    screen = io.StringIO()
+    with stage_progress(Console(file=screen, force_terminal=True, width=100), plain=False) as progress:
+        progress("frames", 1, 4)
+        progress("frames", 4, 4)
+        progress("fitting", 2, None)
+        progress("fitting", 5, None)
+    text = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", screen.getvalue())
+    assert "4/4" in text and "5/5" in text and "None" not in text

@@ -50,12 +50,19 @@ def stage_progress(console=None, interval_s: float = PLAIN_INTERVAL_S,
 
         def update(stage: str, done: int, total: int | None) -> None:
             if stage not in tasks:
-                for task in bar.tasks:  # a stage is over once the next one reports
-                    bar.update(task.id, total=task.total or 1, completed=task.total or 1)
+                _finish(bar)  # a stage is over once the next one reports
                 tasks[stage] = bar.add_task(stage, total=total)
             bar.update(tasks[stage], completed=done, total=total)
 
         yield update
+        _finish(bar)
+
+
+def _finish(bar) -> None:
+    """Show every bar of ``bar`` (a rich Progress) as complete, with its count."""
+    for task in bar.tasks:
+        final = task.total if task.total is not None else max(task.completed, 1)
+        bar.update(task.id, total=final, completed=final)
 
 
 class _PlainLines:
