@@ -8,12 +8,7 @@ import numpy as np
 import pytest
 
 from scanrig.cli.main import main
-from scanrig.geometry import Camera, Rig
 from scanrig.reconstruct.light_plane import load_light_plane
-from scanrig.sim.calibration_shots import default_target
-from scanrig.sim.library import load_scene
-from scanrig.sim.light_plane_shots import write_light_plane_shots
-from scanrig.targets import save_target
 from tests.reconstruct import light_plane_synth as synth
 
 #: The task's accuracy for >= 6 poses at 0.3-0.6 m.
@@ -30,12 +25,7 @@ def session(tmp_path_factory):
     """8 poses of the chessboard, an 800 x 640 camera with f = 600 px, rendered once (~2 s)."""
     out = tmp_path_factory.mktemp("lp") / "s"
     out.mkdir()
-    K = np.array([[600.0, 0, 399.5], [0, 600.0, 319.5], [0, 0, 1]])
-    cam = Camera.from_opencv("cam0", K, np.array([-0.1, 0.05, 0, 0, 0]), np.eye(3), np.zeros(3), 800, 640)
-    target = default_target("chessboard")
-    save_target(target, out / "target.toml")
-    write_light_plane_shots(out, load_scene("default"), Rig([cam]), target, 8, np.random.default_rng(3), workers=1)
-    return out
+    return synth.rendered_session(out, 8)
 
 
 def _copy(src, dst):

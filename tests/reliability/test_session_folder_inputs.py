@@ -86,21 +86,12 @@ def test_a_session_folder_without_the_product_is_named(good_session, capsys, arg
 def test_calibrate_leaves_its_inputs_unchanged(tmp_path, capsys):
     """A one-camera chessboard session (6 poses, 800 x 640, with laser-on twins in light_plane/):
     only rig.toml and calibration_report/ may appear."""
-    import numpy as np
 
-    from scanrig.geometry import Camera, Rig
-    from scanrig.sim.calibration_shots import default_target
-    from scanrig.sim.library import load_scene
-    from scanrig.sim.light_plane_shots import write_light_plane_shots
-    from scanrig.targets import save_target
+    from tests.reconstruct.light_plane_synth import rendered_session
 
     root = tmp_path / "s"
     root.mkdir()
-    K = np.array([[600.0, 0, 399.5], [0, 600.0, 319.5], [0, 0, 1]])
-    cam = Camera.from_opencv("cam0", K, np.array([-0.1, 0.05, 0, 0, 0]), np.eye(3), np.zeros(3), 800, 640)
-    target = default_target("chessboard")
-    save_target(target, root / "target.toml")
-    write_light_plane_shots(root, load_scene("default"), Rig([cam]), target, 6, np.random.default_rng(3), workers=1)
+    rendered_session(root, 6)
     before = snapshot(root)
     assert main(["calibrate", str(root), "--no-cross-validate", "--no-plots"]) == 0, capsys.readouterr().err
     after = snapshot(root)

@@ -20,6 +20,7 @@ from scanrig.sim.scan_setup import scene_rig
 from scanrig.sim.scene_file import load_scene_file
 from scanrig.sim.sensor import Sensor
 from scanrig.sim.session_writer import simulate_session
+from tests.sim.test_scene_file import GOOD
 
 #: Measured noise variance within 5 % of the model (relative standard error of a variance from
 #: N >= 60 000 samples is sqrt(2 / N) < 0.6 %), as in test_noise.
@@ -181,16 +182,7 @@ def test_scene_and_laser_shapes_must_match():
 
 
 # --- scene files ------------------------------------------------------------------------------------
-SCENE = """
-name = "t"
-[materials.paint]
-kind = "matte"
-[[objects]]
-name = "ball"
-shape = "sphere"
-radius_m = 0.05
-material = "paint"
-"""
+SCENE = GOOD  # a valid one-ball scene of the scene-file tests
 
 
 def _scene_file(tmp_path, extra: str):

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _profile, centre_misfit, fit_batch
-from scanrig.laser.image import ColourFrames, effective_noise
+from scanrig.laser.image import ColourFrames
 
 #: Parameter order of the colour models: the profile's (centre, then widths), then per channel.
 PARAMS_1D = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
@@ -32,18 +32,6 @@ PARAMS_2D = ("u0", "v0", "width_u", "width_v", "a_r", "a_g", "a_b", "b_r", "b_g"
 _MAX_OVEREXPOSURE = 100.0
 #: Widths tried for the start, pixels.
 _START_WIDTHS = np.array([0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0])
-
-
-def channel_noise(colour: ColourFrames) -> np.ndarray:
-    """Noise σ of each raw channel (of frame − dark with a dark frame), DN: ``(3,)``, including
-    noise correlated over a few pixels (:func:`~scanrig.laser.image.effective_noise`)."""
-    out = np.empty(3)
-    for c in range(3):
-        plane = colour.image[:, :, c]
-        if colour.dark is not None:
-            plane = plane.astype(np.float32) - colour.dark[:, :, c]
-        out[c] = effective_noise(plane)
-    return out
 
 
 def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndarray, half: int,
@@ -138,7 +126,7 @@ def _windows(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray):
         raw_dark = colour.dark[rows, cols]
         usable &= raw_dark < colour.clip_level
         y -= raw_dark
-    return y, usable, channel_noise(colour)
+    return y, usable, colour.channel_noise
 
 
 def _bounds(colour: ColourFrames, half: int, n_axes: int):

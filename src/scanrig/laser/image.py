@@ -152,6 +152,18 @@ class ColourFrames:
         """Noise σ of :attr:`laser_plane`, DN (:func:`effective_noise`)."""
         return effective_noise(self.laser_plane)
 
+    @functools.cached_property
+    def channel_noise(self) -> np.ndarray:
+        """Noise σ ``(3,)`` of each raw channel (of frame − dark with a dark frame), DN
+        (:func:`effective_noise`): measured once per frame, for every fit of its clipped traces."""
+        out = np.empty(3)
+        for c in range(3):  # the three channels
+            plane = self.image[:, :, c]
+            if self.dark is not None:
+                plane = plane.astype(np.float32) - self.dark[:, :, c]
+            out[c] = effective_noise(plane)
+        return out
+
 
 @dataclass(frozen=True)
 class LaserImage:
