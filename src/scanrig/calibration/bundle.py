@@ -14,6 +14,11 @@ Robustness: iteratively reweighted least squares with Huber weights on each obse
 residual norm (scale from the median residual), then iterated outlier rejection at
 :data:`OUTLIER_SIGMAS` robust sigmas; every rejected observation is listed in the result.
 The final solve uses plain least squares on the inliers, so the covariance is the textbook one.
+
+Intrinsics known from elsewhere (a separate calibration of each camera) enter either held fixed
+(``fixed_params``) or as Gaussian priors (``priors``): one extra residual row per prior parameter,
+``sigma_px * (x_k - mean_k) / std_k``, with ``sigma_px`` the residual scale of the pixels, so that
+``sigma_px² (JᵀJ)⁻¹`` holds the prior's own variance ``std_k²``.
 """
 
 from __future__ import annotations
@@ -185,6 +190,51 @@ def rotation_jacobians(rvecs: np.ndarray):
     return R, M
 
 
+@dataclass(frozen=True)
+class PriorRows:
+    """Prior residual rows ``weight * (x[cols] - mean)`` appended below the pixel residuals.
+
+    Attributes
+    ----------
+    cols : ndarray of int, shape (k,)
+        Positions in ``x`` of the parameters with a prior.
+    mean : ndarray of shape (k,)
+        Prior values.
+    std : ndarray of shape (k,)
+        Prior standard deviations, in the parameters' units (> 0).
+    """
+
+    cols: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+
+    @classmethod
+    def build(cls, cameras: list[Camera], layout: Layout, priors: dict) -> PriorRows | None:
+        """Rows for ``priors`` (``camera name -> (params, params_std)``) over the free parameters
+        whose prior sigma is positive; None when there are none."""
+        cols, mean, std = [], [], []
+        for cam, index in zip(cameras, layout.intrinsics):
+            if cam.name not in priors:
+                continue
+            params, params_std = (np.asarray(v, dtype=float) for v in priors[cam.name])
+            use = (index >= 0) & (params_std > 0)
+            cols.append(index[use])
+            mean.append(params[use])
+            std.append(params_std[use])
+        if not cols or not sum(len(c) for c in cols):
+            return None
+        return cls(np.concatenate(cols), np.concatenate(mean), np.concatenate(std))
+
+    def residuals(self, x: np.ndarray, scale_px: float) -> np.ndarray:
+        """(k,) rows at ``x``, in pixels (``scale_px`` = residual sigma of the pixels)."""
+        return scale_px * (x[self.cols] - self.mean) / self.std
+
+    def jacobian(self, n_params: int, scale_px: float) -> scipy.sparse.csr_matrix:
+        """(k, n_params) derivative of :meth:`residuals`."""
+        k = len(self.cols)
+        return scipy.sparse.csr_matrix((scale_px / self.std, (np.arange(k), self.cols)), shape=(k, n_params))
+
+
 class Problem:
     """Residuals and sparse Jacobian of a fixed set of observations, as a function of ``x``.
 
@@ -201,11 +251,16 @@ class Problem:
         Values of the parameters held fixed.
     sqrt_w : ndarray of shape (N,)
         Square roots of the observation weights.
+    prior : PriorRows, optional
+        Prior rows appended below the ``2N`` pixel rows.
+    prior_scale_px : float
+        Pixel residual sigma the prior rows are scaled with.
     """
 
     def __init__(self, obs: Observations, p_target: np.ndarray, layout: Layout, template: State,
-                 sqrt_w: np.ndarray):
+                 sqrt_w: np.ndarray, prior: PriorRows | None = None, prior_scale_px: float = 1.0):
         self.obs, self.p_target, self.layout, self.template, self.sqrt_w = obs, p_target, layout, template, sqrt_w
+        self.prior, self.prior_scale_px = prior, prior_scale_px
         n_shots = len(layout.shot_pose)
         self._shot_rvec0 = np.zeros((n_shots, 3))
         self._shot_t0 = np.zeros((n_shots, 3))
@@ -256,7 +311,8 @@ class Problem:
         return rvec, t
 
     def __call__(self, x: np.ndarray, jacobian: bool = True):
-        """Weighted residuals (2N,) and, if ``jacobian``, the sparse Jacobian (2N, layout.size)."""
+        """Weighted residuals (2N + k,) and, if ``jacobian``, the sparse Jacobian (2N + k, layout.size);
+        ``k`` prior rows (0 without a prior)."""
         obs, layout = self.obs, self.layout
         cameras = unpack_cameras(x, self.layout, self.template.cameras)
         rvec, t = self._shot_params(x)
@@ -267,7 +323,7 @@ class Problem:
         if not jacobian:
             for cam, sel in zip(cameras, self._camera_rows):
                 r[sel] = cam.project(p_world[sel]) - obs.uv[sel]
-            return (r * self.sqrt_w[:, None]).ravel()
+            return self._with_prior(x, (r * self.sqrt_w[:, None]).ravel())
         J_rot = -(Rs @ self._skew_p @ M[obs.shot])      # d p_world / d shot rvec, (N, 3, 3)
         values = []
         for c, (cam, sel) in enumerate(zip(cameras, self._camera_rows)):
@@ -285,7 +341,14 @@ class Problem:
             values.append((J_shot * w[has]).ravel())
         data = np.concatenate(values)[self._perm]
         J = scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=(2 * len(obs), layout.size))
-        return (r * self.sqrt_w[:, None]).ravel(), J
+        if self.prior is not None:
+            J = scipy.sparse.vstack([J, self.prior.jacobian(layout.size, self.prior_scale_px)], format="csr")
+        return self._with_prior(x, (r * self.sqrt_w[:, None]).ravel()), J
+
+    def _with_prior(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        if self.prior is None:
+            return r
+        return np.concatenate([r, self.prior.residuals(x, self.prior_scale_px)])
 
 @dataclass
 class Outlier:
@@ -343,7 +406,7 @@ class BundleResult:
 def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
                   world_from_target: list[RigidTransform | None], reference_shot: int,
                   fixed_params: dict[str, tuple[str, ...]] | None = None, robust: bool = True,
-                  max_iterations: int = 100) -> BundleResult:
+                  max_iterations: int = 100, priors: dict | None = None) -> BundleResult:
     """Jointly refine intrinsics, camera poses and target poses.
 
     Parameters
@@ -362,6 +425,9 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
         Huber IRLS and outlier rejection (True) or plain least squares on all observations.
     max_iterations : int
         Per Levenberg–Marquardt run.
+    priors : dict, optional
+        ``camera name -> (params, params_std)``, each of shape (n_params,): Gaussian priors on
+        that camera's free intrinsics (parameters with ``params_std`` 0 get none).
 
     Raises
     ------
@@ -376,6 +442,9 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
     p_target, known = target.lookup(obs.point_id)
     usable = known & shot_active[obs.shot]
     x = pack(template, layout)
+    prior = PriorRows.build(cameras, layout, priors or {})
+    n_prior = 0 if prior is None else len(prior.cols)
+    prior_scale_px = 1.0
     inliers = usable.copy()
     outliers: list[Outlier] = []
     total_iterations = 0
@@ -383,7 +452,8 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
     def solve(x, rows, irls_weight, cost_rtol=COST_RTOL):
         sub = obs.subset(rows)
         _check_redundancy(2 * len(sub), layout.size)
-        problem = Problem(sub, p_target[rows], layout, template, np.sqrt(sub.weight * irls_weight))
+        problem = Problem(sub, p_target[rows], layout, template, np.sqrt(sub.weight * irls_weight),
+                          prior, prior_scale_px)
         return levenberg_marquardt(problem, x, max_iterations, cost_rtol)
 
     if robust:
@@ -401,6 +471,7 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
             norm_all = np.full(len(obs), np.nan)
             norm_all[usable] = _residual_norms(x, layout, template, obs, p_target, usable)
             scale = np.median(norm_all[inliers]) / RAYLEIGH_MEDIAN
+            prior_scale_px = float(scale)
             bad = inliers & (norm_all > OUTLIER_SIGMAS * scale)
             if not np.any(bad):
                 break
@@ -408,16 +479,20 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
                 outliers.append(Outlier(obs.camera_names[obs.camera[i]], obs.shot_names[obs.shot[i]],
                                         int(obs.point_id[i]), float(norm_all[i] / np.sqrt(obs.weight[i]))))
             inliers &= ~bad
-    res = solve(x, inliers, np.ones(inliers.sum()))
-    x, total_iterations = res.x, total_iterations + res.iterations
-    state = unpack(x, layout, template)
     sub = obs.subset(inliers)
-    r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight))(x, True)
-    if not np.all(np.isfinite(r)):
-        raise EstimationError("bundle adjustment diverged (points behind a camera); check the target "
-                              "definition and the image order of every camera")
-    dof = 2 * len(sub) - layout.size
-    sigma = float(np.sqrt(r @ r / dof))
+    dof = 2 * len(sub) + n_prior - layout.size
+    # With priors the final solve runs twice: the prior rows are scaled with the pixel sigma that
+    # the first run measures, so the covariance carries the prior's own variance.
+    for _ in range(1 if prior is None else 2):
+        res = solve(x, inliers, np.ones(inliers.sum()))
+        x, total_iterations = res.x, total_iterations + res.iterations
+        r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight), prior, prior_scale_px)(x, True)
+        if not np.all(np.isfinite(r)):
+            raise EstimationError("bundle adjustment diverged (points behind a camera); check the target "
+                                  "definition and the image order of every camera")
+        sigma = float(np.sqrt(r @ r / dof))
+        prior_scale_px = sigma
+    state = unpack(x, layout, template)
     residuals = np.full((len(obs), 2), np.nan)
     residuals[usable] = project_observations(state, obs.subset(usable), p_target[usable]) - obs.uv[usable]
     return BundleResult(state, layout, x, obs, inliers, residuals, sigma, outliers, total_iterations, J)
