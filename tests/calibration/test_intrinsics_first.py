@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanrig.calibration.bundle import Layout, PriorRows, Problem, State, bundle_adjust, pack
+from scanrig.calibration.bundle import (
+    Layout,
+    PriorRows,
+    Problem,
+    State,
+    bundle_adjust,
+    pack,
+)
 from scanrig.calibration.init import initialise
 from scanrig.calibration.synthetic import ring_cameras, simulate
 from scanrig.calibration.uncertainty import covariance

@@ -15,6 +15,7 @@ import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
 from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
+from scanrig.calibration.intrinsics_prior import solve_constraints, undetermined_intrinsics, with_known_intrinsics
 from scanrig.calibration.observations import Observations
 from scanrig.calibration.uncertainty import Uncertainty, covariance, intrinsics_difference, projection_uncertainty
 from scanrig.errors import FileFormatError, InputError
@@ -66,6 +67,7 @@ class CalibrationResult:
     cross_validation: CrossValidation | None = None
     warnings: list = field(default_factory=list)
     not_found: list = field(default_factory=list)
+    known_intrinsics: dict = field(default_factory=dict)
 
     def camera_info(self) -> dict:
         """Per-camera quality fields for ``rig.toml``."""
@@ -96,7 +98,8 @@ def check_observations(obs: Observations, target: Target) -> None:
 
 
 def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
-              fixed_params: dict | None = None, cross_validate: bool = True) -> CalibrationResult:
+              fixed_params: dict | None = None, cross_validate: bool = True,
+              known_intrinsics: dict | None = None, refine_intrinsics: bool = False) -> CalibrationResult:
     """Calibrate every camera jointly from observations.
 
     Parameters
@@ -109,35 +112,56 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
         ``camera -> parameter names held at their initial value``.
     cross_validate : bool
         Also run the odd/even split (when each half has :data:`MIN_SHOTS_PER_HALF` shots).
+    known_intrinsics : dict, optional
+        ``camera -> KnownIntrinsics`` (:mod:`scanrig.calibration.intrinsics_prior`): these
+        cameras keep their model and intrinsics, held fixed or, with ``refine_intrinsics``,
+        refined under priors with their standard deviations.
+    refine_intrinsics : bool
 
     Raises
     ------
     InputError
-        Too few views, a camera that never sees the target, a disconnected camera graph.
+        Too few views, a camera that never sees the target, a disconnected camera graph,
+        ``refine_intrinsics`` for known intrinsics without standard deviations.
     """
-    models = model if isinstance(model, dict) else {name: model for name in obs.camera_names}
+    known = known_intrinsics or {}
+    models = dict(model) if isinstance(model, dict) else {name: model for name in obs.camera_names}
+    models.update({name: k.camera.model for name, k in known.items()})
+    fixed, priors = solve_constraints(known, refine_intrinsics)
+    fixed = {name: tuple((fixed_params or {}).get(name, ())) + fixed.get(name, ())
+             for name in obs.camera_names}
     for name in obs.camera_names:
-        if models.get(name) not in CALIBRATION_MODELS:
+        if name not in known and models.get(name) not in CALIBRATION_MODELS:
             raise InputError(f"camera {name!r}: model must be one of {list(CALIBRATION_MODELS)}, "
                              f"got {models.get(name)!r}")
     check_observations(obs, target)
-    init = initialise(obs, target, models)
-    bundle = bundle_adjust(obs, target, init.cameras, init.world_from_target, init.reference_shot, fixed_params)
+    init, bundle = _solve(obs, target, models, fixed, priors, known)
     unc = covariance(bundle)
     rig = Rig(bundle.state.cameras)
     distance = _working_distances(bundle, target)
     sigma_map = {name: projection_uncertainty(bundle, unc, c, distance[name])[1]
                  for c, name in enumerate(rig.names)}
     warnings = list(unc.warnings)
+    warnings += [line for cam in rig.cameras if cam.name not in known
+                 if (line := undetermined_intrinsics(cam, unc.params_std[cam.name]))]
     for cam_name, shot, reason in init.dropped_views:
         warnings.append(f"view {cam_name}/{shot} left out of the initialisation: {reason}")
     n_out = len(bundle.outliers)
     if n_out > 0.05 * len(obs):
         warnings.append(f"{n_out} of {len(obs)} detections rejected as outliers (> 5 %): check the detections")
-    result = CalibrationResult(rig, bundle, unc, init, target, distance, sigma_map, warnings=warnings)
+    result = CalibrationResult(rig, bundle, unc, init, target, distance, sigma_map, warnings=warnings,
+                               known_intrinsics=known)
     if cross_validate:
-        result.cross_validation = _cross_validate(obs, target, models, fixed_params, result)
+        result.cross_validation = _cross_validate(obs, target, models, fixed, result, priors)
     return result
+
+
+def _solve(obs, target, models, fixed_params, priors, known) -> tuple[Initialisation, BundleResult]:
+    """Initialise and bundle-adjust; the intrinsics of ``known`` replace the initial ones."""
+    init = initialise(obs, target, models)
+    init.cameras = with_known_intrinsics(init.cameras, known)
+    return init, bundle_adjust(obs, target, init.cameras, init.world_from_target, init.reference_shot,
+                               fixed_params, priors=priors)
 
 
 def _working_distances(bundle: BundleResult, target: Target) -> dict:
@@ -155,7 +179,7 @@ def _working_distances(bundle: BundleResult, target: Target) -> dict:
     return out
 
 
-def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult) -> CrossValidation | None:
+def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult, priors=None) -> CrossValidation | None:
     halves = []
     for parity in (0, 1):
         shots = np.flatnonzero(np.arange(len(obs.shot_names)) % 2 == parity)
@@ -164,9 +188,7 @@ def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult) 
             return None
         try:
             check_observations(sub, target)
-            init = initialise(sub, target, models)
-            halves.append(bundle_adjust(sub, target, init.cameras, init.world_from_target,
-                                        init.reference_shot, fixed_params).state.cameras)
+            halves.append(_solve(sub, target, models, fixed_params, priors, full.known_intrinsics)[1].state.cameras)
         except InputError:
             return None
     rms, worst, expected = {}, {}, {}
@@ -178,8 +200,10 @@ def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult) 
     return CrossValidation(rms, worst, expected)
 
 
-def detect_session(session, target: Target, cameras: list[str] | None = None, progress=None):
-    """Detect the target in every calibration image of a session.
+def detect_session(session, target: Target, cameras: list[str] | None = None, progress=None,
+                   stage: str = "calibration"):
+    """Detect the target in every calibration image of a session (of ``stage``: ``calibration``
+    or ``calibration_intrinsic``).
 
     Returns
     -------
@@ -195,8 +219,8 @@ def detect_session(session, target: Target, cameras: list[str] | None = None, pr
     from scanrig.calibration.detect import detect_target
     from scanrig.io.session import read_image
 
-    cameras = cameras or session.camera_names("calibration")
-    frames = session.frames("calibration", cameras)
+    cameras = cameras or session.camera_names(stage)
+    frames = session.frames(stage, cameras)
     sizes: dict[str, tuple[int, int]] = {}
     first: dict[str, Path] = {}
     parts, not_found = [], []
@@ -218,13 +242,14 @@ def detect_session(session, target: Target, cameras: list[str] | None = None, pr
             progress()
     missing = [c for c in cameras if c not in sizes]
     if missing:
-        raise FileFormatError(session.root / "calibration", f"cameras {missing} have no calibration images")
+        raise FileFormatError(session.root / stage, f"cameras {missing} have no calibration images")
     return Observations.concatenate(parts, cameras, list(frames), sizes), not_found
 
 
 def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
                       cross_validate: bool = True, plots: bool = True, command_line: str = "",
-                      progress_factory=None) -> CalibrationResult:
+                      progress_factory=None, intrinsics: str | Path | None = None,
+                      refine_intrinsics: bool = False) -> CalibrationResult:
     """Calibrate a session folder and write ``rig.toml`` and ``calibration_report/``.
 
     Parameters
@@ -241,20 +266,29 @@ def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str
         Recorded in ``rig.toml``.
     progress_factory : callable, optional
         ``progress_factory(total) -> advance()`` for a progress display during detection.
+    intrinsics : path, optional
+        A ``rig.toml`` or OpenCV YAML whose cameras' intrinsics are held fixed (or, with
+        ``refine_intrinsics``, refined under priors with their ``params_std``); cameras with
+        ``calibration_intrinsic/<camera>/`` images are first calibrated alone from them
+        (:mod:`scanrig.calibration.intrinsics_prior`).
+    refine_intrinsics : bool
     """
-    result, obs = solve_session(root, model, corners_csv, cross_validate, progress_factory)
+    result, obs = solve_session(root, model, corners_csv, cross_validate, progress_factory, intrinsics,
+                                refine_intrinsics)
     write_session_outputs(root, result, obs, plots, command_line)
     return result
 
 
 def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
-                  cross_validate: bool = True, progress_factory=None) -> tuple[CalibrationResult, Observations]:
+                  cross_validate: bool = True, progress_factory=None, intrinsics: str | Path | None = None,
+                  refine_intrinsics: bool = False) -> tuple[CalibrationResult, Observations]:
     """Detect and calibrate a session folder without writing anything.
 
     Parameters are those of :func:`calibrate_session`. Returns the result and the detections
     (for :func:`write_session_outputs`).
     """
     from scanrig.calibration.corners_csv import read_corners_csv
+    from scanrig.calibration.intrinsics_prior import session_intrinsics
     from scanrig.io.session import Session, read_image
     from scanrig.targets import load_target
 
@@ -262,20 +296,22 @@ def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | P
     target = load_target(session.target_path)
     cameras = session.camera_names("calibration")
     not_found: list = []
+    sizes = {}
+    for cam in cameras:
+        paths = session.image_paths("calibration", cam)
+        if not paths:
+            raise FileFormatError(session.root / "calibration" / cam, "no calibration images (needed for the size)")
+        img = read_image(next(iter(paths.values())))
+        sizes[cam] = (img.shape[1], img.shape[0])
+    known = session_intrinsics(session, sizes, model, intrinsics, refine_intrinsics, progress_factory)
     if corners_csv is not None:
-        sizes = {}
-        for cam in cameras:
-            paths = session.image_paths("calibration", cam)
-            if not paths:
-                raise FileFormatError(session.root / "calibration" / cam, "no calibration images (needed for the size)")
-            img = read_image(next(iter(paths.values())))
-            sizes[cam] = (img.shape[1], img.shape[0])
         obs = read_corners_csv(corners_csv, sizes, cameras)
     else:
         n_images = sum(len(session.image_paths("calibration", c)) for c in cameras)
         advance = progress_factory(n_images) if progress_factory else None
         obs, not_found = detect_session(session, target, cameras, advance)
-    result = calibrate(obs, target, model, cross_validate=cross_validate)
+    result = calibrate(obs, target, model, cross_validate=cross_validate, known_intrinsics=known,
+                       refine_intrinsics=refine_intrinsics)
     result.not_found = not_found
     return result, obs
 

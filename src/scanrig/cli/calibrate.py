@@ -24,12 +24,19 @@ def command(
     light_plane: Annotated[bool, typer.Option("--light-plane", help="Also calibrate the fixed laser's plane of every camera with light_plane/<camera>/ images; writes light_plane.toml.")] = False,
     color: Annotated[str | None, typer.Option(help="Laser colour for --light-plane: red, green, blue or grey (default: laser_color of session.toml, else grey).")] = None,
     seed: Annotated[int, typer.Option(help="Random seed of the robust light-plane fit and its calibration samples; recorded in light_plane.toml.")] = 0,
+    intrinsics: Annotated[Path | None, typer.Option(help="rig.toml or OpenCV YAML of intrinsics calibrated beforehand (cameras matched by name): held fixed in the joint solve.")] = None,
+    refine_intrinsics: Annotated[bool, typer.Option("--refine-intrinsics", help="Refine the known intrinsics (--intrinsics with params_std, or from calibration_intrinsic/) under priors with their sigma instead of holding them fixed.")] = False,
 ):
     """Calibrate all cameras jointly from target images; write rig.toml and calibration_report/.
 
     Detects the target of target.toml (chessboard, ChArUco, circle grid or cube) in every image,
     initialises without user input, runs one robust bundle adjustment over all intrinsics and
     poses, and reports RMS, parameter sigmas, rejected outliers and an odd/even cross-validation.
+
+    Intrinsics first, then the rig: with --intrinsics FILE (a rig.toml or OpenCV YAML), or for
+    each camera with calibration_intrinsic/<camera>/ images (calibrated alone first, with
+    calibration_intrinsic/target.toml if present), those intrinsics are held fixed and only the
+    poses are solved; --refine-intrinsics refines them under priors with their sigma instead.
 
     With --light-plane (classic single-camera mode) it then fits the plane of the fixed line
     laser from light_plane/<camera>/<shot> images of the target with the stripe across it (a
@@ -38,6 +45,8 @@ def command(
     frame of rig.toml. Nothing is written when a step fails.
 
     Example: scanrig calibrate demo_session --model opencv4
+
+    Intrinsics example: scanrig calibrate rig_session --intrinsics intrinsics.toml
 
     Light-plane example, on a simulated one-camera session (scanrig simulate lp_session --cameras 1
     --frames 1 --no-calibration --target chessboard --light-plane-shots 8):
@@ -55,10 +64,13 @@ def command(
             return lambda: progress("detecting target", next(done), total)
 
         result, obs = solve_session(session, model=model, corners_csv=corners, cross_validate=cross_validate,
-                                    progress_factory=factory)
+                                    progress_factory=factory, intrinsics=intrinsics,
+                                    refine_intrinsics=refine_intrinsics)
     planes = _light_planes(session, result, *laser, seed) if laser else []
     write_session_outputs(session, result, obs, plots, command_line)
     typer.echo(format_summary(result), nl=False)
+    for name, known in result.known_intrinsics.items():
+        typer.echo(f"{name}: intrinsics {'refined from' if refine_intrinsics else 'held fixed at'} {known.source}")
     typer.echo(f"wrote {Path(session) / 'rig.toml'}")
     for line in _write_light_planes(session, planes, laser[1] if laser else "", seed, command_line, plots):
         typer.echo(line, nl=False)

@@ -6,6 +6,7 @@
       session.toml                 optional: camera order, laser colour and mode, target file
       target.toml                  the calibration target
       calibration/<camera>/<shot>.<png|jpg|tif>
+      calibration_intrinsic/<camera>/<image>.<ext>   optional: each camera's own intrinsic calibration
       scan/<camera>/<frame>.<png|jpg|tif>     (+ optional dark.<ext>, the laser-off frame)
       rig.toml, traces.parquet, points.ply, surface.ply, mesh.ply, report.html
       truth/                       simulator only
@@ -25,7 +26,7 @@ from scanrig.io.toml_fields import check_keys, read_toml
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Stem of the optional laser-off frame in ``scan/<camera>/``.
 DARK_STEM = "dark"
-STAGES = ("calibration", "scan")
+STAGES = ("calibration", "calibration_intrinsic", "scan")
 _SESSION_KEYS = ("cameras", "laser_color", "laser_mode", "target", "seed", "created_by", "notes")
 
 
@@ -94,7 +95,7 @@ class Session:
 
         Parameters
         ----------
-        stage : {"calibration", "scan"}
+        stage : {"calibration", "calibration_intrinsic", "scan"}
 
         Raises
         ------

@@ -1,0 +1,293 @@
+"""Intrinsics first, then the rig: intrinsics known before the joint solve.
+
+Two sources, matched to the session's cameras by name:
+
+- a file given with ``scanrig calibrate --intrinsics FILE``: a scanrig ``rig.toml`` (its
+  ``params_std``, when present, are the intrinsics' standard deviations) or an OpenCV FileStorage
+  YAML (:mod:`scanrig.io.opencv_yaml`; no standard deviations);
+- a separate calibration of each camera alone from ``calibration_intrinsic/<camera>/`` images
+  (any target: ``calibration_intrinsic/target.toml`` when present, else the session's target).
+
+The joint solve then holds those intrinsics fixed, or, with ``refine`` (``--refine-intrinsics``),
+refines them under Gaussian priors with their standard deviations
+(:func:`scanrig.calibration.bundle.bundle_adjust`'s ``priors``). Only the rig poses are then
+left to the rig's views, which is what a rig whose views cannot fix the intrinsics needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scanrig.errors import FileFormatError, InputError
+from scanrig.geometry.camera import Camera
+
+#: Session sub-folder with each camera's own intrinsic calibration images.
+INTRINSIC_STAGE = "calibration_intrinsic"
+#: Optional target file of those images, inside :data:`INTRINSIC_STAGE`.
+INTRINSIC_TARGET = "target.toml"
+#: Parameters named in the one-line warning when the views do not fix them.
+PINHOLE_PARAMS = ("fx", "fy", "cx", "cy")
+#: A pinhole parameter whose 1 sigma moves some pixel of its image by more than this is "not
+#: determined" (the same bound as :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`).
+UNDETERMINED_PX = 0.5
+
+
+@dataclass(frozen=True)
+class KnownIntrinsics:
+    """One camera's intrinsics from outside the rig's views.
+
+    Attributes
+    ----------
+    camera : Camera
+        Model, parameters and image size (its pose is not used).
+    params_std : ndarray of shape (n_params,) or None
+        Standard deviation of each parameter (0 = held fixed where it came from); None when the
+        source gives none.
+    source : str
+        Where they came from (a file, or ``calibration_intrinsic/<camera>``), for messages.
+    """
+
+    camera: Camera
+    params_std: np.ndarray | None
+    source: str
+
+
+def read_intrinsics_file(path: str | Path, image_sizes: dict, optional: tuple[str, ...] = ()) -> dict:
+    """The intrinsics of a ``rig.toml`` or OpenCV YAML, matched to the session's cameras by name.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.toml`` (a scanrig rig file) or ``.yml``/``.yaml`` (OpenCV FileStorage). A one-camera
+        OpenCV calibration file without a ``name`` node matches a session of one camera.
+    image_sizes : dict
+        ``camera name -> (width, height)`` of the session's calibration images, pixels.
+    optional : tuple of str
+        Cameras the file may leave out (their intrinsics come from elsewhere).
+
+    Returns
+    -------
+    dict
+        ``camera name -> KnownIntrinsics`` for every session camera in the file.
+
+    Raises
+    ------
+    FileFormatError
+        An unreadable file, a camera the session does not have, a session camera the file lacks
+        (outside ``optional``), another image size, or ``params_std`` of the wrong length.
+    """
+    from scanrig.io.opencv_yaml import import_opencv_yaml
+    from scanrig.io.rig_file import load_rig_info
+
+    path = Path(path)
+    names = list(image_sizes)
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        rig, info, _ = load_rig_info(path)
+        std = {name: info[name].get("params_std") for name in rig.names}
+    elif suffix in (".yml", ".yaml"):
+        rig = import_opencv_yaml(path, name=names[0] if len(names) == 1 else None)
+        std = dict.fromkeys(rig.names)
+    else:
+        raise FileFormatError(path, f"intrinsics file must be a rig.toml (.toml) or OpenCV YAML (.yml, .yaml), "
+                                    f"got {suffix or 'no suffix'!r}")
+    unknown = [n for n in rig.names if n not in image_sizes]
+    missing = [n for n in names if n not in rig.names and n not in optional]
+    if unknown or missing:
+        parts = ([f"cameras {unknown} are not in the session (its cameras: {names})"] if unknown else []) + \
+                ([f"session cameras {missing} are missing from it"] if missing else [])
+        raise FileFormatError(path, "intrinsics matched by camera name: " + "; ".join(parts))
+    out = {}
+    for cam in rig.cameras:
+        params_std = None if std[cam.name] is None else np.asarray(std[cam.name], dtype=float)
+        if params_std is not None and (params_std.shape != cam.params.shape or np.any(~(params_std >= 0))):
+            raise FileFormatError(path, f"camera {cam.name!r}: params_std must be {len(cam.params)} values >= 0 "
+                                        f"(one per parameter of {cam.model}), got {std[cam.name]!r}")
+        out[cam.name] = check_size(KnownIntrinsics(cam, params_std, str(path)), image_sizes[cam.name])
+    return out
+
+
+def check_size(known: KnownIntrinsics, size: tuple[int, int]) -> KnownIntrinsics:
+    """``known`` itself when its image size is ``size`` (width, height); else InputError."""
+    cam = known.camera
+    if (cam.width, cam.height) != tuple(size):
+        raise InputError(f"{known.source}: camera {cam.name!r} was calibrated at {cam.width}x{cam.height} but its "
+                         f"calibration images are {size[0]}x{size[1]}; intrinsics hold for one image size only")
+    return known
+
+
+def intrinsic_folder_cameras(session) -> list[str]:
+    """Cameras with a ``calibration_intrinsic/<camera>/`` folder (none when it is absent).
+
+    Raises
+    ------
+    FileFormatError
+        A folder named after a camera the session's ``calibration/`` does not have.
+    """
+    if not (session.root / INTRINSIC_STAGE).is_dir():
+        return []
+    cameras = session.camera_names(INTRINSIC_STAGE)
+    rig_cameras = session.camera_names("calibration")
+    unknown = [c for c in cameras if c not in rig_cameras]
+    if unknown:
+        raise FileFormatError(session.root / INTRINSIC_STAGE, f"cameras {unknown} have no calibration/ folder "
+                                                              f"(the session's cameras: {rig_cameras})")
+    return cameras
+
+
+def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_sizes: dict,
+                                progress_factory=None) -> dict:
+    """Calibrate each camera alone from its ``calibration_intrinsic/<camera>/`` images.
+
+    Parameters
+    ----------
+    session : scanrig.io.session.Session
+    cameras : list of str
+        Cameras to calibrate (each has a folder, see :func:`intrinsic_folder_cameras`).
+    model : str
+        Camera model (:data:`scanrig.calibration.pipeline.CALIBRATION_MODELS`).
+    image_sizes : dict
+        ``camera name -> (width, height)`` of the rig's calibration images: the intrinsic
+        images must have the same size.
+    progress_factory : callable, optional
+        ``progress_factory(total) -> advance()``, called once for all the images.
+
+    Returns
+    -------
+    dict
+        ``camera name -> KnownIntrinsics`` with the parameters' standard deviations.
+
+    Raises
+    ------
+    InputError
+        Naming the folder: too few views, no target found, another image size.
+    """
+    from scanrig.calibration.pipeline import calibrate, detect_session
+    from scanrig.targets import load_target
+
+    if not cameras:
+        return {}
+    own_target = session.root / INTRINSIC_STAGE / INTRINSIC_TARGET
+    target = load_target(own_target if own_target.is_file() else session.target_path)
+    n_images = sum(len(session.image_paths(INTRINSIC_STAGE, c)) for c in cameras)
+    advance = progress_factory(n_images) if progress_factory else None
+    out = {}
+    for name in cameras:
+        folder = f"{INTRINSIC_STAGE}/{name}"
+        obs, _ = detect_session(session, target, [name], advance, stage=INTRINSIC_STAGE)
+        try:
+            result = calibrate(obs, target, model, cross_validate=False)
+        except InputError as exc:
+            raise InputError(f"{session.root / folder}: intrinsic calibration of {name!r} alone: {exc}") from None
+        known = KnownIntrinsics(result.rig[name], result.uncertainty.params_std[name], folder)
+        out[name] = check_size(known, image_sizes[name])
+    return out
+
+
+def solve_constraints(known: dict, refine: bool) -> tuple[dict, dict]:
+    """How known intrinsics enter the bundle adjustment.
+
+    Parameters
+    ----------
+    known : dict
+        ``camera name -> KnownIntrinsics``.
+    refine : bool
+        Refine them under priors (needs ``params_std``) instead of holding them fixed.
+
+    Returns
+    -------
+    fixed_params : dict
+        ``camera name -> parameter names held fixed`` (all of them without ``refine``; with it,
+        those whose standard deviation is 0).
+    priors : dict
+        ``camera name -> (params, params_std)`` (empty without ``refine``).
+
+    Raises
+    ------
+    InputError
+        ``refine`` for intrinsics that come without standard deviations.
+    """
+    if not refine:
+        return {name: k.camera.param_names for name, k in known.items()}, {}
+    lacking = sorted({k.source for k in known.values() if k.params_std is None})
+    if lacking:
+        raise InputError(f"--refine-intrinsics needs the intrinsics' standard deviations, and {', '.join(lacking)} "
+                         "has none (a rig.toml with params_std has them); leave out --refine-intrinsics to hold "
+                         "them fixed")
+    fixed = {name: tuple(p for p, s in zip(k.camera.param_names, k.params_std) if s == 0) for name, k in known.items()}
+    return fixed, {name: (k.camera.params, k.params_std) for name, k in known.items()}
+
+
+def with_known_intrinsics(cameras: list[Camera], known: dict) -> list[Camera]:
+    """``cameras`` (poses kept) with the intrinsics of ``known`` where it has them."""
+    out = []
+    for cam in cameras:
+        k = known.get(cam.name)
+        out.append(cam if k is None else
+                   Camera(cam.name, k.camera.model, k.camera.params, cam.width, cam.height, cam.cam_from_world))
+    return out
+
+
+def undetermined_intrinsics(camera: Camera, params_std: np.ndarray) -> str | None:
+    """The one-line warning for a camera whose focal length or principal point its views leave open.
+
+    A pinhole parameter is not determined when its 1 sigma moves some pixel of the image by more
+    than :data:`UNDETERMINED_PX`: ``sigma(cx)`` moves every pixel by itself, ``sigma(fx)`` the
+    image's farthest column from ``cx`` by ``sigma(fx) * max|u - cx| / fx``.
+
+    Parameters
+    ----------
+    camera : Camera
+    params_std : ndarray of shape (n_params,)
+        Standard deviations of its parameters from the joint solve (0 = held fixed).
+
+    Returns
+    -------
+    str or None
+        ``"cam1: intrinsics not determined by these views (fx ±11 px, cx ±10 px): ..."``, or None.
+    """
+    fx, fy, cx, cy = camera.params[:4]
+    reach = np.array([max(cx, camera.width - 1 - cx) / fx, max(cy, camera.height - 1 - cy) / fy, 1.0, 1.0])
+    std = np.asarray(params_std[:4], dtype=float)
+    loose = [f"{p} ±{s:.2g} px" for p, s, moved in zip(PINHOLE_PARAMS, std, std * reach) if moved > UNDETERMINED_PX]
+    if not loose:
+        return None
+    return (f"{camera.name}: intrinsics not determined by these views ({', '.join(loose)}): calibrate them "
+            f"separately ({INTRINSIC_STAGE}/{camera.name}/ images, or --intrinsics FILE)")
+
+
+def session_intrinsics(session, image_sizes: dict, model: str, path: str | Path | None = None,
+                       refine: bool = False, progress_factory=None) -> dict:
+    """Every known intrinsics of a session: from ``path`` (``--intrinsics``) where it has the
+    camera, else from the camera's ``calibration_intrinsic/<camera>/`` images.
+
+    Parameters
+    ----------
+    session : scanrig.io.session.Session
+    image_sizes : dict
+        ``camera name -> (width, height)`` of the session's calibration images, pixels.
+    model : str
+        Model of the per-camera calibrations.
+    path : str or Path, optional
+        See :func:`read_intrinsics_file`; it must name every camera without such a folder.
+    refine : bool
+        ``--refine-intrinsics`` was asked for: there must be known intrinsics to refine.
+    progress_factory : callable, optional
+        See :func:`calibrate_intrinsic_folders`.
+
+    Returns
+    -------
+    dict
+        ``camera name -> KnownIntrinsics`` (empty without a file or folders).
+    """
+    folder_cameras = intrinsic_folder_cameras(session)
+    from_file = read_intrinsics_file(path, image_sizes, tuple(folder_cameras)) if path is not None else {}
+    if refine and not from_file and not folder_cameras:
+        raise InputError(f"--refine-intrinsics needs known intrinsics to refine: give --intrinsics FILE or "
+                         f"{INTRINSIC_STAGE}/<camera>/ images in {session.root}")
+    own = calibrate_intrinsic_folders(session, [c for c in folder_cameras if c not in from_file], model,
+                                      image_sizes, progress_factory)
+    return {**own, **from_file}
