@@ -248,3 +248,31 @@ def test_calibration_intrinsic_folder_is_calibrated_alone_and_held_fixed(stereo,
     z = (rig["left"].params[:4] - joint["left"].params[:4]) / np.array(joint_info["left"]["params_std"][:4])
     print(f"left alone minus joint, in joint sigmas: {np.round(z, 2)}")
     assert np.all(np.abs(z) <= 3.0)
+
+
+def test_bad_input_one_camera_opencv_file_without_name(rig_session, capsys):
+    """OpenCV's single-camera calibration output names no camera: it matches a one-camera
+    session only, or any camera once given a ``name`` node."""
+    root, path = rig_session
+    yml = path.with_suffix(".yml")
+    cam = caliscope_reference()["cam_0"]
+    K = ", ".join(repr(float(v)) for v in cam.K.ravel())
+    dist = ", ".join(repr(float(v)) for v in cam.dist)
+    yml.write_text(f"%YAML:1.0\n---\nimage_width: 1280\nimage_height: 720\ncamera_matrix: !!opencv-matrix\n"
+                   f"   rows: 3\n   cols: 3\n   dt: d\n   data: [ {K} ]\ndistortion_coefficients: !!opencv-matrix\n"
+                   f"   rows: 1\n   cols: 5\n   dt: d\n   data: [ {dist} ]\n")
+    _fails(root, capsys, f"{yml}: top level: missing node 'name'", "--intrinsics", str(yml))
+    yml.write_text(yml.read_text() + "name: cam_0\n")
+    _fails(root, capsys, f"{yml}: intrinsics matched by camera name: session cameras ['cam_1', 'cam_2', 'cam_3'] "
+                         "are missing from it", "--intrinsics", str(yml))
+
+
+def test_cameras_missing_from_the_file_may_come_from_calibration_intrinsic(rig_session, capsys):
+    """A file without cam_3 is accepted when cam_3 has a calibration_intrinsic/ folder, which is
+    then calibrated (here: it holds no image, which is named)."""
+    root, path = rig_session
+    reference = caliscope_reference()
+    save_rig(Rig([c for c in reference.cameras if c.name != "cam_3"]), path)
+    (root / "calibration_intrinsic" / "cam_3").mkdir(parents=True)
+    _fails(root, capsys, f"{root / 'calibration_intrinsic'}: cameras ['cam_3'] have no calibration images",
+           "--intrinsics", str(path))

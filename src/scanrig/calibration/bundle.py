@@ -192,7 +192,7 @@ def rotation_jacobians(rvecs: np.ndarray):
 
 @dataclass(frozen=True)
 class PriorRows:
-    """Prior residual rows ``weight * (x[cols] - mean)`` appended below the pixel residuals.
+    """Prior residual rows ``scale_px * (x[cols] - mean) / std`` appended below the pixel residuals.
 
     Attributes
     ----------
