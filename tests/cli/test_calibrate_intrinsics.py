@@ -276,3 +276,13 @@ def test_cameras_missing_from_the_file_may_come_from_calibration_intrinsic(rig_s
     (root / "calibration_intrinsic" / "cam_3").mkdir(parents=True)
     _fails(root, capsys, f"{root / 'calibration_intrinsic'}: cameras ['cam_3'] have no calibration images",
            "--intrinsics", str(path))
+
+
+def test_calibration_intrinsic_has_its_own_target_file(rig_session, capsys):
+    """calibration_intrinsic/target.toml, when present, is the intrinsic images' target (here a
+    broken one, which is named), not the rig's ChArUco target.toml."""
+    root, _ = rig_session
+    (root / "calibration_intrinsic" / "cam_0").mkdir(parents=True)
+    (root / "calibration_intrinsic" / "target.toml").write_text('kind = "chessboard"\ninner_corners = [9, 6]\n')
+    _fails(root, capsys, f"{root / 'calibration_intrinsic' / 'target.toml'}: target (kind = 'chessboard'): "
+                         "missing field 'square_m'")
