@@ -40,10 +40,9 @@ def command(
     import numpy as np
     import trimesh
     from rich.console import Console
-    from rich.progress import Progress
-    from rich.table import Table
 
     import scanrig
+    from scanrig.cli.progress import stage_progress
     from scanrig.design import analyze_existing, design_rig, load_spec
     from scanrig.design.outputs import camera_rows, design_summary, write_design
     from scanrig.design.spec import DesignSpec
@@ -64,31 +63,22 @@ def command(
     design_spec = load_spec(spec) if spec is not None else DesignSpec()
     provenance = {"scanrig": scanrig.__version__, "command": shlex.join(["scanrig", *sys.argv[1:]]),
                   "object": name, "seed": seed}
-    console = Console(stderr=True)
-    if rig is not None:
-        existing = load_rig(session_file(rig, "rig.toml", "scanrig calibrate"))
-        design = analyze_existing(obj, existing, design_spec, mesh_name=name, occluders=occluders)
-    else:
-        with Progress(console=console, transient=True) as progress:
-            task = progress.add_task("candidate cameras", total=None)
+    with stage_progress(Console(stderr=True)) as progress:
+        if rig is not None:
+            existing = load_rig(session_file(rig, "rig.toml", "scanrig calibrate"))
+            progress("analysing the rig", 0, 1)
+            design = analyze_existing(obj, existing, design_spec, mesh_name=name, occluders=occluders)
+            progress("analysing the rig", 1, 1)
+        else:
             design = design_rig(obj, cameras, design_spec, np.random.default_rng(seed), mesh_name=name,
                                 allow_open=allow_open, compare_ring=ring, occluders=occluders,
-                                progress=lambda done, total: progress.update(task, completed=done, total=total))
-    paths = write_design(out, design, provenance)
+                                progress=lambda done, total: progress("rating candidate cameras", done, total))
+        progress("writing outputs", 0, None)
+        paths = write_design(out, design, provenance)
 
-    table = Table(title=f"{name}: {len(design.rig)} cameras, target sigma {1e3 * design.spec.target.sigma_m:.3g} mm")
-    rows = camera_rows(design)
-    columns = [("camera", "camera", "{}"), ("f mm", "focal_length_mm", "{:.1f}"), ("x m", "x_m", "{:.3f}"),
-               ("y m", "y_m", "{:.3f}"), ("z m", "z_m", "{:.3f}"), ("dist m", "distance_m", "{:.3f}"),
-               ("seen %", "seen_fraction", "{:.1%}"), ("focus %", "in_focus_fraction", "{:.0%}"),
-               ("covered %", "covered_after", "{:.1%}"), ("gain %", "marginal_gain", "{:.1%}"),
-               ("loss %", "loss_if_removed", "{:.1%}")]
-    for title, _, _ in columns:
-        table.add_column(title, justify="left" if title == "camera" else "right")
-    for row in rows:
-        table.add_row(*(fmt.format(row[key]).replace("%", "") for _, key, fmt in columns))
     out_console = Console()
-    out_console.print(table)
+    out_console.print(camera_table(camera_rows(design), f"{name}: {len(design.rig)} cameras, target sigma "
+                                                      f"{1e3 * design.spec.target.sigma_m:.3g} mm"))
     summary = design_summary(design)
     out_console.print(f"covered within target: {100 * summary['covered_fraction']:.1f} % of the surface; "
                       f"median sigma {1e3 * summary['sigma_median_m']:.3g} mm, "
@@ -97,6 +87,39 @@ def command(
         out_console.print(f"symmetric ring of the same cameras: {100 * summary['ring_covered_fraction']:.1f} %")
     for path in paths:
         out_console.print(str(path))
+
+
+#: Columns of the camera table: header (unit on its own line), key of ``camera_rows``, format. Positions
+#: in whole millimetres, fractions in per cent and one space between columns keep the eleven columns
+#: within 80 characters (78 for a camera 10 m away).
+CAMERA_COLUMNS = (("camera", "camera", "{}"), ("f\nmm", "focal_length_mm", "{:.1f}"), ("x\nmm", "x_m", "{:.0f}"),
+                  ("y\nmm", "y_m", "{:.0f}"), ("z\nmm", "z_m", "{:.0f}"), ("dist\nmm", "distance_m", "{:.0f}"),
+                  ("seen\n%", "seen_fraction", "{:.1f}"), ("focus\n%", "in_focus_fraction", "{:.0f}"),
+                  ("covered\n%", "covered_after", "{:.1f}"), ("gain\n%", "marginal_gain", "{:.1f}"),
+                  ("loss\n%", "loss_if_removed", "{:.1f}"))
+#: ``camera_rows`` values in metres and fractions, times this factor in the table.
+_TABLE_SCALE = {"x_m": 1e3, "y_m": 1e3, "z_m": 1e3, "distance_m": 1e3, "seen_fraction": 100, "in_focus_fraction": 100,
+                "covered_after": 100, "marginal_gain": 100, "loss_if_removed": 100}
+
+
+def camera_table(rows: list[dict], title: str):
+    """The per-camera table of a design (a rich Table), readable in an 80-column terminal.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`scanrig.design.outputs.camera_rows` (metres, fractions).
+    title : str
+    """
+    from rich import box
+    from rich.table import Table
+
+    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, padding=(0, 1, 0, 0))
+    for header, _, _ in CAMERA_COLUMNS:
+        table.add_column(header, justify="left" if header == "camera" else "right", no_wrap=True)
+    for row in rows:
+        table.add_row(*(fmt.format(row[key] * _TABLE_SCALE.get(key, 1)) for _, key, fmt in CAMERA_COLUMNS))
+    return table
 
 
 #: Scene objects that only block views: the design does not try to cover them.

@@ -23,13 +23,12 @@ def command(
     Example: scanrig report demo_session --max-points 50000 --seed 1
     """
     import numpy as np
-    from rich.progress import Progress, SpinnerColumn, TextColumn
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.report import write_report
 
-    with Progress(SpinnerColumn(), TextColumn("report: {task.description}"), transient=True) as bar:
-        task = bar.add_task("starting", total=None)
+    with stage_progress() as progress:
         path = write_report(session, out, rng=np.random.default_rng(seed), max_points=max_points,
                             summary=[("report seed", str(seed))],
-                            progress=lambda name: bar.update(task, description=name))
+                            progress=lambda section: progress(f"report: {section}", 0, None))
     typer.echo(f"wrote {path}")

@@ -42,8 +42,8 @@ def command(
     Example: scanrig scan scan_demo --sim sphere --budget 60 --spacing-mm 20 --seed 1
     """
     import numpy as np
-    from rich.progress import Progress
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
     from scanrig.io.rig_file import load_rig, save_rig
     from scanrig.io.session import Session
@@ -82,15 +82,18 @@ def command(
         calibrated = load_rig(session / "rig.toml")   # as a resumed scan will read it
     process = SpotProcessor(calibrated, color=settings["laser_color"], dark=store.dark_paths())
     rng = np.random.default_rng(settings["seed"])
-    with make_executor(scheduler, workers) as executor, Progress(transient=True) as bar:
-        task = bar.add_task("scanning", total=settings["budget"], completed=len(store.state.frames))
-        result = run_scan(store, cameras, positioner, config, process, rng, settings["budget"], executor=executor,
-                          on_frame=lambda stem, done, planned: bar.update(task, completed=done),
+    budget = settings["budget"]   # the scan stops at the budget or earlier, once the surface is covered
+    with make_executor(scheduler, workers) as executor, stage_progress() as progress:
+        progress("scanning frames", len(store.state.frames), budget)
+        result = run_scan(store, cameras, positioner, config, process, rng, budget, executor=executor,
+                          on_frame=lambda stem, done, planned: progress("scanning frames", done, budget),
                           grab_timeout_s=None if camera is None else GRAB_TIMEOUT_S)
+        n_frames = len(store.state.frames)
+        progress("scanning frames", n_frames, n_frames)   # ends the stage at the frames taken
     out = Session(session).points_path
-    write_points(out, result.points, comments=(f"seed: {settings['seed']}", f"scanrig scan: {len(store.state.frames)} "
-                                                f"frames, {result.n_passes} passes, stopped: {result.reason}"))
-    typer.echo(f"{len(store.state.frames)} frames in {result.n_passes} passes ({result.reason}); "
+    stopped = f"scanrig scan: {n_frames} frames, {result.n_passes} passes, stopped: {result.reason}"
+    write_points(out, result.points, comments=(f"seed: {settings['seed']}", stopped))
+    typer.echo(f"{n_frames} frames in {result.n_passes} passes ({result.reason}); "
                f"{len(result.points)} points -> {out}")
 
 
@@ -115,7 +118,12 @@ def _rig(session, sim, replay, camera, gcode, head_mm, n_cameras, sim_scale, set
     roi = _roi(settings["roi_mm"])
     if sim is not None:
         from scanrig.sim import VirtualRig, load_scene
-        from scanrig.sim.scan_setup import LASER_COLOR, laser_stations, scene_rig, scene_roi
+        from scanrig.sim.scan_setup import (
+            LASER_COLOR,
+            laser_stations,
+            scene_rig,
+            scene_roi,
+        )
 
         scene = load_scene(sim)
         rig = scene_rig(scene, n_cameras, sim_scale)
