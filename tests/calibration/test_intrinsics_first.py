@@ -104,3 +104,30 @@ def test_tight_prior_acts_as_fixed_intrinsics(rig_views):
     # Both solves leave camera 0's intrinsics within 1e-6 prior sigmas of the same values: the
     # baselines agree far below the micrometre.
     assert baseline[0] == pytest.approx(baseline[1], abs=1e-7)
+
+
+def test_a_camera_with_known_intrinsics_needs_one_view_only():
+    """The real 4-webcam rig with cam_1 seen in one frame only: refused without its intrinsics
+    (two views of a board are needed to calibrate it), solved with them."""
+    from scanrig.calibration.intrinsics_prior import KnownIntrinsics
+    from scanrig.calibration.pipeline import calibrate
+    from scanrig.errors import InputError
+    from scanrig.targets import charuco
+    from tests.calibration.test_real_data import _caliscope_observations
+    from tests.cli.test_calibrate_intrinsics import caliscope_reference
+
+    obs = _caliscope_observations()
+    one_view = obs.subset((obs.camera != 1) | (obs.shot == obs.shot_names.index("60")))
+    target = charuco((4, 5), 0.054, 0.0405, "DICT_4X4_1000")
+    with pytest.raises(InputError, match=r"^camera 'cam_1': the target was found in 1 usable view\(s\); at least 2"):
+        calibrate(one_view, target, "opencv5", cross_validate=False)
+    reference = caliscope_reference()
+    known = {name: KnownIntrinsics(reference[name], None, "camera_array.toml") for name in reference.names}
+    result = calibrate(one_view, target, "opencv5", cross_validate=False, known_intrinsics=known)
+    baseline = np.linalg.norm(result.rig["cam_1"].center_world - result.rig["cam_0"].center_world)
+    baseline_ref = np.linalg.norm(reference["cam_1"].center_world - reference["cam_0"].center_world)
+    sigma_m = np.linalg.norm(result.uncertainty.center_std_m["cam_1"])
+    print(f"cam_0-cam_1 baseline from one view of cam_1: {1000 * (baseline - baseline_ref):+.1f} mm from the "
+          f"rig's own, stated sigma of cam_1's centre {1000 * sigma_m:.1f} mm")
+    np.testing.assert_array_equal(result.rig["cam_1"].params, reference["cam_1"].params)
+    assert abs(baseline - baseline_ref) < 3 * sigma_m

@@ -83,7 +83,8 @@ def test_caliscope_rig_with_its_own_intrinsics_gives_its_relative_poses(tmp_path
     for name in CAMERAS:
         assert f"{name}: intrinsics held fixed at {tmp_path / 'intrinsics.toml'}" in out
         assert f"{name}: intrinsics not determined" not in out
-    rig, info, _ = load_rig_info(root / "rig.toml")
+    rig, info, metadata = load_rig_info(root / "rig.toml")
+    assert metadata["intrinsics_from"] == {name: str(tmp_path / "intrinsics.toml") for name in CAMERAS}
     for name in CAMERAS:
         assert rig[name].model == "opencv5"
         np.testing.assert_array_equal(rig[name].params, reference[name].params)   # held exactly

@@ -78,8 +78,9 @@ class CalibrationResult:
                 for c, name in enumerate(self.rig.names)}
 
 
-def check_observations(obs: Observations, target: Target) -> None:
-    """Bad-input checks before any solve: every camera sees the target in enough views."""
+def check_observations(obs: Observations, target: Target, known_intrinsics: tuple[str, ...] = ()) -> None:
+    """Bad-input checks before any solve: every camera sees the target in enough views (one is
+    enough for a camera in ``known_intrinsics``: only its pose is left to find)."""
     board_idx = target.board_of(obs.point_id)
     unknown = board_idx < 0
     if np.any(unknown):
@@ -92,7 +93,10 @@ def check_observations(obs: Observations, target: Target) -> None:
     for c, name in enumerate(obs.camera_names):
         if not np.any(obs.camera == c):
             raise InputError(f"camera {name!r}: the target was never found in its calibration images")
-        if per_camera[c] < MIN_PLANES_PER_CAMERA:
+        if name in known_intrinsics and per_camera[c] == 0:
+            raise InputError(f"camera {name!r}: no view shows {MIN_POINTS_PER_PLANE} or more points of one board; "
+                             "at least one is needed for its pose")
+        if name not in known_intrinsics and per_camera[c] < MIN_PLANES_PER_CAMERA:
             raise InputError(f"camera {name!r}: the target was found in {per_camera[c]} usable view(s); "
                              f"at least {MIN_PLANES_PER_CAMERA} are needed (views of a board at different tilts)")
 
@@ -134,7 +138,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
         if name not in known and models.get(name) not in CALIBRATION_MODELS:
             raise InputError(f"camera {name!r}: model must be one of {list(CALIBRATION_MODELS)}, "
                              f"got {models.get(name)!r}")
-    check_observations(obs, target)
+    check_observations(obs, target, tuple(known))
     init, bundle = _solve(obs, target, models, fixed, priors, known)
     unc = covariance(bundle)
     rig = Rig(bundle.state.cameras)
@@ -349,6 +353,8 @@ def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Obse
         "n_outliers": len(result.bundle.outliers),
         "world_frame": f"target frame at shot {obs.shot_names[result.init.reference_shot]!r}",
     }
+    if result.known_intrinsics:
+        metadata["intrinsics_from"] = {name: k.source for name, k in result.known_intrinsics.items()}
     comments = [f"written by scanrig {scanrig.__version__} on {metadata['date']}: {command_line}",
                 f"RMS reprojection error {metadata['rms_px']} px over {metadata['n_observations']} points"]
     save_rig(result.rig, session.rig_path, result.camera_info(), metadata, comments)
