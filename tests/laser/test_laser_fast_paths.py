@@ -163,3 +163,28 @@ def test_candidates_match_a_plain_search(along):
     np.testing.assert_array_equal(found.v, vv[keep])
     np.testing.assert_array_equal(found.u, uu[keep])
     np.testing.assert_allclose(found.score, score[keep], rtol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_prominence_table_matches_the_windows_and_a_plain_loop(dtype):
+    rng = np.random.default_rng(21)
+    signal = rng.integers(0, 255, size=(23, 61)).astype(dtype)
+    n = 200
+    line = rng.integers(0, 23, n)
+    pos = np.r_[0, 60, 1, 59, rng.integers(0, 61, n - 4)]  # the frame's edges included
+    reach = rng.integers(1, 40, n)
+    windows = peaks._prominence_from_windows(signal, line, pos, reach)
+    table = peaks._prominence_from_table(signal, line, pos, reach)
+    far = 41  # beyond the frame its edge pixels repeat
+    padded = np.pad(signal.astype(np.float64), ((1, 1), (far, far)), mode="edge")
+    box = sum(padded[i : i + 23, j : j + 61 + 2 * far - 2] for i in range(3) for j in range(3))
+
+    def plain(k):
+        at = lambda x: box[line[k], x + far - 1]  # noqa: E731
+        left = min(at(pos[k] - d) for d in range(1, reach[k] + 1))
+        right = min(at(pos[k] + d) for d in range(1, reach[k] + 1))
+        return at(pos[k]) - max(left, right), at(pos[k])
+
+    expected = np.array([plain(k) for k in range(n)]).T
+    np.testing.assert_allclose(windows, expected, atol=1e-3)
+    np.testing.assert_allclose(table, expected, atol=1e-3)

@@ -304,6 +304,11 @@ def suppress_on_lines(line: np.ndarray, pos: np.ndarray, score: np.ndarray, radi
     return keep
 
 
+#: Cost of one value gathered into a candidate's window relative to one entry of the running-minimum
+#: table (measured on 1920 x 1080 colour frames: about 30 ns against 5 ns).
+_GATHER_COST = 6
+
+
 def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
                     reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Prominence of candidates along their scan lines (axis 1 of ``signal``), DN of the 3 × 3 box sum.
@@ -311,6 +316,10 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
     The box sum at ``pos`` minus the higher of the two lowest box sums on its left and on its
     right within ``reach`` pixels: both flanks must fall for a candidate to be prominent.
     Positions beyond the frame repeat its edge.
+
+    A few candidates (a stripe's one crossing per line) read their windows directly; many (a
+    textured colour frame has tens of thousands) query a table of running minima of the whole
+    frame's box sums, whose cost does not grow with the reach.
 
     Parameters
     ----------
@@ -327,6 +336,15 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
     """
     if line.size == 0:
         return np.zeros(0, np.float32), np.zeros(0, np.float32)
+    far = int(reach.max())
+    n_levels = far.bit_length()
+    if _GATHER_COST * 3 * line.size * (2 * far + 3) <= (n_levels + 3) * signal.size:
+        return _prominence_from_windows(signal, line, pos, reach)
+    return _prominence_from_table(signal, line, pos, reach)
+
+
+def _prominence_from_windows(signal, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_prominence` from each candidate's own ``3 × (2 reach + 3)`` window."""
     n_lines, n_pos = signal.shape
     far = int(reach.max())
     offs = np.arange(-far - 1, far + 2)
@@ -339,6 +357,41 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
     left = box_masked[:, :far].min(axis=1)
     right = box_masked[:, far + 1 :].min(axis=1)
     return box[:, far] - np.maximum(left, right), box[:, far]
+
+
+def _prominence_from_table(signal, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_prominence` from a sparse table of running minima along the lines.
+
+    ``minima[k][l, x]`` is the lowest box sum of ``x .. x + 2**k - 1`` on line ``l``; the lowest
+    of any window is that of two overlapping power-of-two windows (a range-minimum query). Beyond
+    the frame the pixels repeat its edge, so every box sum there is three times the edge column.
+    """
+    import cv2
+
+    n_pos = signal.shape[1]
+    values = np.ascontiguousarray(signal, dtype=np.float32)  # summed in float32, like the windows
+    col3 = cv2.boxFilter(values, cv2.CV_32F, (1, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
+    minima = np.empty((int(reach.max()).bit_length(),) + values.shape, np.float32)
+    box = cv2.boxFilter(col3, cv2.CV_32F, (3, 1), dst=minima[0], normalize=False,
+                        borderType=cv2.BORDER_REPLICATE)
+    for k in range(1, minima.shape[0]):
+        half = 1 << (k - 1)
+        np.minimum(minima[k - 1, :, : n_pos - half], minima[k - 1, :, half:], out=minima[k, :, : n_pos - half])
+        minima[k, :, n_pos - half :] = minima[k - 1, :, n_pos - half :]
+
+    def lowest(lo, hi, beyond_box):
+        """Lowest box sum of ``lo .. hi`` on each candidate's line, the part beyond the frame
+        counting as ``beyond_box``."""
+        inside = np.clip([lo, hi], 0, n_pos - 1)
+        level = np.log2(inside[1] - inside[0] + 1).astype(np.int64)  # exact for these small integers
+        low = np.minimum(minima[level, line, inside[0]], minima[level, line, inside[1] + 1 - (1 << level)])
+        low = np.where(hi < 0, np.inf, np.where(lo >= n_pos, np.inf, low))  # the window lies outside
+        return np.where((lo < 0) | (hi >= n_pos), np.minimum(low, beyond_box), low)
+
+    left = lowest(pos - reach, pos - 1, 3.0 * col3[line, 0])
+    right = lowest(pos + 1, pos + reach, 3.0 * col3[line, n_pos - 1])
+    centre = box[line, pos]
+    return (centre - np.maximum(left, right)).astype(np.float32), centre
 
 
 def _empty() -> Candidates:

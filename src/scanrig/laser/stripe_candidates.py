@@ -142,14 +142,19 @@ _MAX_RUN_HALF_PX = 32
 
 def _centre_of_saturated_run(saturated, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
     """Seeds that sit on a clipped plateau (found at its end) moved to the plateau's middle, and the
-    plateau's half-length (0 for seeds that are not clipped), followed at most ``reach`` pixels."""
+    plateau's half-length (0 for seeds that are not clipped), followed at most ``reach`` pixels and
+    not beyond the frame."""
+    pos, run_half = pos.copy(), np.zeros(pos.size, np.int64)
+    clipped = np.flatnonzero(saturated[line, pos])
     offs = np.arange(-reach, reach + 1)
-    idx = np.clip(pos[:, None] + offs, 0, saturated.shape[1] - 1)
-    sat = saturated[line[:, None], idx]
+    idx = pos[clipped, None] + offs
+    inside = (idx >= 0) & (idx < saturated.shape[1])
+    sat = saturated[line[clipped, None], np.clip(idx, 0, saturated.shape[1] - 1)] & inside
     right = np.cumprod(sat[:, reach:], axis=1).sum(axis=1)
     left = np.cumprod(sat[:, reach::-1], axis=1).sum(axis=1)
-    clipped = sat[:, reach]
-    return np.where(clipped, pos + (right - left) // 2, pos), np.where(clipped, (right + left) // 2, 0)
+    pos[clipped] += (right - left) // 2
+    run_half[clipped] = (right + left) // 2
+    return pos, run_half
 
 
 def strongest_per_line(line, score, max_per_line) -> np.ndarray:
