@@ -33,7 +33,8 @@ def command(
 
     Prints a table per camera with its marginal gain and the covered fraction of the surface
     (seen by two or more cameras within the accuracy target), against a symmetric ring of the
-    same cameras. The rig file is ready for scanrig simulate.
+    same cameras. The rig file loads with scanrig.load_rig; the simulator renders it
+    (scanrig.sim.simulate_session(..., rig=...)).
 
     Example: scanrig design --scene ibeam --cameras 3 --out design
     """

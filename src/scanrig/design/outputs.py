@@ -1,6 +1,6 @@
 """Files a design writes: the rig, maps on the mesh, views, and the tables.
 
-``OUT/rig.toml``          the designed rig, ready for ``scanrig simulate``
+``OUT/rig.toml``          the designed rig (``scanrig.load_rig``; ``simulate_session(..., rig=)`` renders it)
 ``OUT/coverage.ply``      the mesh with per-vertex predictions (fields below)
 ``OUT/coverage.png``      views of the views-count and predicted-sigma maps, cameras marked
 ``OUT/cameras.csv``       one row per camera (pose, lens, seen area, marginal gain)

@@ -1,0 +1,168 @@
+"""Every command block of README.md and docs/*.md runs as written, in order, on simulated sessions.
+
+Each page runs in a folder of its own, its blocks one after the other in one ``bash -e`` each (so
+a block sees what the blocks before it wrote). The marks and rules that leave a block or a command
+out (docs/contributing.md) are each reported as a skipped test with the page, line and reason.
+
+- ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
+  red spot laser, 4 cube poses, 20 frames) copied into the page's folder.
+- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by that small
+  session already calibrated, detected and reconstructed at ``./FOLDER``.
+- Rules: installing (``python3 -m venv``, ``. .venv/bin/activate``, ``pip install``) is left out
+  (the test runs in the installed environment), and so is ``python -m pytest`` (this test is part
+  of that run).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from .markdown_blocks import PAGES, ROOT, Block, blocks
+
+#: Commands left out by rule: rule name -> pattern of a command (one part of an ``&&`` chain).
+RULES = {
+    "install": re.compile(r"^python3? -m venv\b|^(\.|source) \S*\.venv/bin/activate\b|^(python3? -m )?pip install\b"),
+    "test suite": re.compile(r"^python3? -m pytest\b"),
+}
+#: The small simulated session that stands in for a real rig's (``SESSION``).
+SMALL_SESSION = ["scanrig", "simulate", "{out}", "--frames", "20", "--shots", "4", "--seed", "1"]
+#: What turns it into a processed session (a stand-in for the demo's).
+PROCESS = [["scanrig", "calibrate", "{out}"], ["scanrig", "detect", "{out}"], ["scanrig", "reconstruct", "{out}"]]
+#: Seconds one block may take (the slowest, a calibration, takes about 20 s on an idle machine).
+BLOCK_TIMEOUT_S = 600
+
+
+def _rule(command: str) -> str | None:
+    return next((name for name, pattern in RULES.items() if pattern.match(command.strip())), None)
+
+
+def runnable_script(block: Block) -> tuple[str, list[tuple[str, str]]]:
+    """The block's script without the commands left out by rule, and those commands with their rule."""
+    script = re.sub(r"\\\n\s*", " ", block.commands())   # one line per command
+    kept_lines, left_out = [], []
+    for line in script.splitlines():
+        parts = [part.strip() for part in line.split("&&")]
+        kept = []
+        for part in parts:
+            rule = _rule(part.split("#")[0]) if part.strip() else None
+            if rule is None:
+                kept.append(part)
+            else:
+                left_out.append((rule, part.split("#")[0].strip()))
+        if kept and any(part.split("#")[0].strip() for part in kept):
+            kept_lines.append(" && ".join(kept))
+    return "\n".join(kept_lines), left_out
+
+
+def _plan(page: Path) -> tuple[list[tuple[Block, str]], list[tuple[str, str, str]]]:
+    """The blocks of ``page`` to run (with their scripts) and what is skipped: (where, reason, command)."""
+    to_run, skipped = [], []
+    for block in blocks(page):
+        if not block.is_command_block:
+            continue
+        try:
+            skip = block.skip()
+        except ValueError:
+            skip = ("unknown mark", None)   # test_marks_are_known fails on it
+        first = next((line for line in block.commands().splitlines() if line.strip() and not line.startswith("#")), "")
+        if skip is not None:
+            reason, stand_in = skip
+            skipped.append((block.where, reason + (f", stand-in ./{stand_in}" if stand_in else ""), first))
+            to_run.append((block, ""))   # its stand-in still has to be put in place
+            continue
+        script, left_out = runnable_script(block)
+        for rule in dict.fromkeys(rule for rule, _ in left_out):   # one report per rule and block
+            skipped.append((block.where, rule, "; ".join(c for r, c in left_out if r == rule)))
+        if script:
+            to_run.append((block, script))
+    return to_run, skipped
+
+
+PLANS = {page: _plan(page) for page in PAGES}
+RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if any(script for _, script in to_run)]
+SKIPPED = [item for _, skipped in PLANS.values() for item in skipped]
+
+
+def _environment() -> dict[str, str]:
+    env = dict(os.environ, MPLBACKEND="Agg", COLUMNS="80")
+    env["PATH"] = str(Path(sys.executable).parent) + os.pathsep + env.get("PATH", "")
+    return env
+
+
+def _run(script: str, cwd: Path, where: str) -> None:
+    result = subprocess.run(["bash", "-e", "-o", "pipefail", "-c", script], check=False, cwd=cwd, env=_environment(),
+                            capture_output=True, text=True, timeout=BLOCK_TIMEOUT_S)
+    if result.returncode != 0:
+        tail = "\n".join((result.stdout + result.stderr).splitlines()[-30:])
+        pytest.fail(f"{where}: exit status {result.returncode} running\n{script}\n--- output (last lines) ---\n{tail}",
+                    pytrace=False)
+
+
+class Sessions:
+    """The small simulated sessions, made once per test run when a page needs them."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self._raw = self._processed = None
+
+    def raw(self) -> Path:
+        if self._raw is None:
+            self._raw = self.root / "raw"
+            _run(" ".join(SMALL_SESSION).format(out=self._raw), self.root, "the small session")
+        return self._raw
+
+    def processed(self) -> Path:
+        if self._processed is None:
+            self._processed = self.root / "processed"
+            shutil.copytree(self.raw(), self._processed)
+            for command in PROCESS:
+                _run(" ".join(command).format(out=self._processed), self.root, "the processed small session")
+        return self._processed
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    return Sessions(tmp_path_factory.mktemp("docs-sessions"))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+@pytest.mark.parametrize("page", RUN_PAGES, ids=[str(p.relative_to(ROOT)) for p in RUN_PAGES])
+def test_command_blocks_run_in_order(page, sessions, tmp_path):
+    to_run, _ = PLANS[page]
+    if any(re.search(r"\bSESSION\b", script) for _, script in to_run):
+        shutil.copytree(sessions.raw(), tmp_path / "SESSION")
+    for block, script in to_run:
+        if not script:
+            stand_in = block.skip()[1]
+            if stand_in is not None:
+                shutil.copytree(sessions.processed(), tmp_path / stand_in)
+            continue
+        _run(script, tmp_path, block.where)
+
+
+@pytest.mark.parametrize("where, reason, command", SKIPPED, ids=[f"{w} {r}" for w, r, _ in SKIPPED])
+def test_skipped_blocks_are_named(where, reason, command):
+    """One skipped test per block or command the docs test leaves out, so the summary names them."""
+    pytest.skip(f"{where} not run ({reason}): {command}")
+
+
+def test_every_block_with_commands_says_whether_it_runs():
+    """A block showing commands is tagged: bash/sh/console (run here) or text (shown, not run)."""
+    untagged = [block.where for page in PAGES for block in blocks(page)
+                if not block.lang and re.search(r"^(\$ |scanrig |python3? |pip )", block.text, re.MULTILINE)]
+    assert not untagged, f"untagged blocks with commands (tag them bash, or text if they are not to run): {untagged}"
+
+
+def test_marks_are_known():
+    """A mistyped mark would silently run or skip a block: every mark parses."""
+    for page in PAGES:
+        for block in blocks(page):
+            block.skip()   # raises ValueError naming the page and line
