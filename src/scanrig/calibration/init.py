@@ -2,9 +2,15 @@
 
 1. Intrinsics per camera from planar homographies (Zhang's method, ``cv2.calibrateCamera``) on
    every board seen in every view: a planar target gives one plane per view, the cube two or
-   three planes per view, so even a single shot of the cube initialises every camera.
-2. The pose of the target in every view by PnP (IPPE for one plane, SQPnP otherwise) refined
-   with Levenberg–Marquardt.
+   three planes per view, so even a single shot of the cube initialises every camera. When
+   these intrinsics fit the camera's views badly (median PnP RMS above
+   :data:`ZHANG_ACCEPT_RMS_PX`, as on a fisheye), or Zhang's method
+   fails, a central-projection seed refined by a ladder of bundle adjustments is tried
+   (:mod:`scanrig.calibration.init_wide`) and the better of the two kept.
+2. The pose of the target in every view by PnP (IPPE for one plane, SQPnP otherwise, on the
+   corners' lines of sight) refined with Levenberg–Marquardt. A view whose RMS exceeds the gate
+   of :func:`~scanrig.calibration.init_wide.view_gate_px` (relative to how well the camera's
+   model fits its views) is left out and reported; never every view of a camera.
 3. Camera and shot poses by a maximum spanning tree over the bipartite graph cameras–shots
    (edge weight = points in the view), rooted at the first shot: world = target frame there.
 """
@@ -16,6 +22,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scanrig.calibration.init_wide import (
+    MAX_VIEW_RMS_PX,
+    MIN_POINTS_PER_VIEW,
+    LensFitError,
+    pnp_bearings,
+    view_gate_px,
+    wide_angle_intrinsics,
+)
 from scanrig.calibration.observations import Observations
 from scanrig.errors import EstimationError, InputError
 from scanrig.geometry.camera import Camera
@@ -25,11 +39,10 @@ from scanrig.targets import Target
 
 #: Fewest points of one board in one view for a homography (4 would be exact; 6 gives redundancy).
 MIN_POINTS_PER_PLANE = 6
-#: Fewest points in a view for its pose (PnP); views with fewer are dropped and reported.
-MIN_POINTS_PER_VIEW = 4
-#: A view whose PnP reprojection RMS exceeds this (pixels) is a failed detection or a wrong
-#: correspondence; it is dropped from the initialisation and reported (the BA may still use it).
-MAX_VIEW_RMS_PX = 10.0
+#: Zhang's intrinsics are kept without trying the wide-angle initialisation when the median PnP
+#: RMS of the camera's views is at most this (pixels): a lens it models fits to about the corner
+#: noise, a fisheye misses by pixels to tens of pixels.
+ZHANG_ACCEPT_RMS_PX = 2.0
 #: Most planes given to ``calibrateCamera`` per camera (evenly spread), to keep it fast.
 MAX_PLANES_FOR_INTRINSICS = 40
 #: Least ratio of the smaller to the larger principal spread of a board's points in one view for
@@ -82,22 +95,89 @@ def initialise(obs: Observations, target: Target, models: dict[str, str]) -> Ini
         if counts[c].sum() == 0:
             raise InputError(f"camera {name!r}: the target was never detected in its calibration images")
     dropped: list[tuple[str, str, str]] = []
-    cameras = [_intrinsics(obs, target, c, models[name]) for c, name in enumerate(obs.camera_names)]
+    cameras = []
     cam_from_target = {}
-    for c, s in zip(*np.nonzero(counts)):
-        cam_name, shot_name = obs.camera_names[c], obs.shot_names[s]
-        if counts[c, s] < MIN_POINTS_PER_VIEW:
-            dropped.append((cam_name, shot_name, f"{counts[c, s]} points < {MIN_POINTS_PER_VIEW}"))
-            continue
-        rows = (obs.camera == c) & (obs.shot == s)
-        pose, rms = view_pose(cameras[c], target, obs.point_id[rows], obs.uv[rows])
-        if pose is None or rms > MAX_VIEW_RMS_PX:
-            dropped.append((cam_name, shot_name, f"PnP failed (rms {rms:.3g} px)"))
-            continue
-        cam_from_target[(int(c), int(s))] = (pose, int(counts[c, s]))
+    for c, name in enumerate(obs.camera_names):
+        camera, poses = _camera_and_views(obs, target, c, models[name])
+        cameras.append(camera)
+        rms = np.array([rms for _, _, rms in poses.values()])
+        gate = view_gate_px(rms)
+        for s, (pose, n, rms_s) in poses.items():
+            if pose is None or not rms_s <= gate:
+                dropped.append((name, obs.shot_names[s], f"PnP failed (rms {rms_s:.3g} px > {gate:.3g} px)"))
+            else:
+                cam_from_target[(c, s)] = (pose, n)
+        for s in np.flatnonzero((counts[c] > 0) & (counts[c] < MIN_POINTS_PER_VIEW)):
+            dropped.append((name, obs.shot_names[s], f"{counts[c, s]} points < {MIN_POINTS_PER_VIEW}"))
     cam_from_world, world_from_target, reference = _spanning_tree(cam_from_target, obs)
     cameras = [cam.with_pose(cam_from_world[c]) for c, cam in enumerate(cameras)]
     return Initialisation(cameras, world_from_target, reference, dropped)
+
+
+def _camera_and_views(obs: Observations, target: Target, c: int, model: str):
+    """Initial intrinsics of camera ``c`` and the PnP pose of each of its views.
+
+    Zhang's intrinsics first; when they fail, or their median view RMS exceeds
+    :data:`ZHANG_ACCEPT_RMS_PX`, the wide-angle initialisation too, keeping the better fit.
+
+    Returns
+    -------
+    camera : Camera
+    poses : dict
+        ``shot -> (cam_from_target or None, n_points, rms_px)`` of every view with at least
+        :data:`MIN_POINTS_PER_VIEW` points.
+
+    Raises
+    ------
+    EstimationError
+        Neither initialisation fits any view (the message names the cause).
+    """
+    camera, poses, median = None, {}, np.inf
+    try:
+        camera = _intrinsics(obs, target, c, model)
+        poses = _view_poses(camera, obs, target, c)
+        median = _median_rms(poses)
+    except EstimationError:
+        pass
+    if median <= ZHANG_ACCEPT_RMS_PX:
+        return camera, poses
+    try:
+        wide = wide_angle_intrinsics(obs, target, c, model)
+    except LensFitError:
+        if median <= MAX_VIEW_RMS_PX:   # Zhang's fit is rough but usable: the gate sorts its views
+            return camera, poses
+        raise
+    wide_poses = _view_poses(wide, obs, target, c)
+    if _median_rms(wide_poses) < median:
+        camera, poses = wide, wide_poses
+    rms = {s: r for s, (_, _, r) in poses.items()}
+    s_best = min(rms, key=rms.get) if rms else None
+    if s_best is None or not rms[s_best] <= MAX_VIEW_RMS_PX:
+        raise EstimationError(
+            f"camera {obs.camera_names[c]!r}: no distortion model in the ladder fits the corners of any view "
+            + (f"(best PnP RMS {rms[s_best]:.3g} px in view {obs.shot_names[s_best]})" if rms else "(no PnP pose)")
+            + f": the lens may exceed what the {model} model can image"
+            + ("; use opencv8" if model != "opencv8" else ""))
+    return camera, poses
+
+
+def _view_poses(camera: Camera, obs: Observations, target: Target, c: int) -> dict:
+    """``shot -> (cam_from_target or None, n_points, rms_px)`` of camera ``c``'s views with at
+    least :data:`MIN_POINTS_PER_VIEW` points."""
+    rows = np.flatnonzero(obs.camera == c)
+    out = {}
+    for s in np.unique(obs.shot[rows]):
+        sel = rows[obs.shot[rows] == s]
+        if len(sel) >= MIN_POINTS_PER_VIEW:
+            pose, rms = view_pose(camera, target, obs.point_id[sel], obs.uv[sel])
+            out[int(s)] = (pose, len(sel), rms)
+    return out
+
+
+def _median_rms(poses: dict) -> float:
+    """Median RMS (px) of the views that have a pose; inf when none has."""
+    rms = [rms for pose, _, rms in poses.values() if pose is not None and np.isfinite(rms)]
+    return float(np.median(rms)) if rms else np.inf
 
 
 def _intrinsics(obs: Observations, target: Target, c: int, model: str) -> Camera:
@@ -186,28 +266,20 @@ def view_pose(camera: Camera, target: Target, point_ids: np.ndarray, uv: np.ndar
     p_target, uv = p_target[known], uv[known]
     if len(p_target) < MIN_POINTS_PER_VIEW:
         return None, np.inf
-    K, dist = camera.K, camera.dist
-    planar = np.ptp(_plane_distances(p_target)) < 1e-9
-    method = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    xy, _ = camera.unproject(uv)
+    pose = pnp_bearings(p_target, np.column_stack([xy, np.ones(len(xy))]) / np.hypot(np.hypot(*xy.T), 1.0)[:, None])
+    if pose is None:
+        return None, np.inf
     try:
-        ok, rvec, tvec = cv2.solvePnP(p_target, uv, K, dist, flags=method)
-        if ok and np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec)):
-            rvec, tvec = cv2.solvePnPRefineLM(p_target, uv, K, dist, rvec, tvec)
-    except cv2.error:   # degenerate point sets (e.g. all on one line)
-        ok = False
-    if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        rvec, tvec = cv2.solvePnPRefineLM(p_target, uv, camera.K, camera.dist, pose.rvec.copy(), pose.t.copy())
+    except cv2.error:
+        return None, np.inf
+    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         return None, np.inf
     pose = RigidTransform.from_rvec_tvec(rvec.ravel(), tvec.ravel())
     q = camera.with_pose(pose).project(p_target)
     rms = float(np.sqrt(np.nanmean(np.sum((q - uv) ** 2, axis=1))))
     return pose, rms if np.isfinite(rms) else np.inf
-
-
-def _plane_distances(points: np.ndarray) -> np.ndarray:
-    """Signed distances of points to their best-fit plane."""
-    centred = points - points.mean(axis=0)
-    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
-    return centred @ normal
 
 
 def _spanning_tree(cam_from_target: dict, obs: Observations):

@@ -9,6 +9,12 @@ import numpy as np
 from scanrig.errors import InputError
 from scanrig.geometry import Camera, Rig, RigidTransform
 
+#: Standard deviations of the per-camera variations of ``k1 k2 p1 p2 k3``. A rational (opencv8)
+#: lens keeps its coefficients: its numerator and denominator are balanced against each other (a
+#: fisheye's k2 of 0.005 would change sign), and its decentering terms, not divided by the
+#: denominator, grow with the square of ``tan theta`` (2e-4 moves a fisheye's rim by ~40 px).
+DIST_VARIATION = {"opencv5": np.array([0.01, 0.01, 2e-4, 2e-4, 0.0]), "opencv8": np.zeros(5)}
+
 
 @dataclass(frozen=True)
 class RigSpec:
@@ -28,8 +34,14 @@ class RigSpec:
         Image size, pixels.
     fx_px : float
         Focal length, pixels (fy = fx).
-    dist : tuple of 5 floats
-        OpenCV ``k1 k2 p1 p2 k3`` of every camera (each camera gets small seeded variations).
+    dist : tuple of 5 or 8 floats
+        OpenCV ``k1 k2 p1 p2 k3`` (model ``opencv5``) or ``k1 k2 p1 p2 k3 k4 k5 k6`` (model
+        ``opencv8``, e.g. the fisheye of the built-in ``fisheye`` scene) of every camera (each camera
+        gets small seeded variations, :data:`DIST_VARIATION`).
+    cover_field : bool
+        Calibration shots spread over the cameras' whole fields of view, the target facing
+        the camera that picked the shot's line of sight (as a user calibrates a wide-angle lens),
+        instead of placed around the scene's ``center_m``.
     """
 
     distance_m: float = 1.0
@@ -40,12 +52,19 @@ class RigSpec:
     height: int = 1024
     fx_px: float = 2200.0
     dist: tuple = (-0.1, 0.05, 0.0, 0.0, 0.0)
+    cover_field: bool = False
 
     def __post_init__(self):
         if not self.distance_m > 0 or not self.fx_px > 0:
             raise InputError("rig distance_m and fx_px must be positive")
-        if len(self.dist) != 5:
-            raise InputError(f"rig dist must hold 5 coefficients (k1 k2 p1 p2 k3), got {len(self.dist)}")
+        if len(self.dist) not in (5, 8):
+            raise InputError(f"rig dist must hold 5 coefficients (k1 k2 p1 p2 k3) or 8 (k1 k2 p1 p2 k3 k4 k5 "
+                             f"k6), got {len(self.dist)}")
+
+    @property
+    def model(self) -> str:
+        """Camera model of the rig's cameras: ``opencv5`` or ``opencv8`` (from the length of ``dist``)."""
+        return "opencv5" if len(self.dist) == 5 else "opencv8"
 
     def scaled(self, factor: float) -> RigSpec:
         """The same cameras with image size (rounded to whole pixels) and focal length times ``factor``."""
@@ -105,7 +124,8 @@ def default_rig(n_cameras: int = 3, center_m=(0.0, 0.0, 0.1), spec: RigSpec | No
         fx = spec.fx_px * (1 + 0.01 * rng.standard_normal())
         cx = (spec.width - 1) / 2 + 8 * rng.standard_normal()
         cy = (spec.height - 1) / 2 + 8 * rng.standard_normal()
-        dist = np.asarray(spec.dist) + np.array([0.01, 0.01, 2e-4, 2e-4, 0.0]) * rng.standard_normal(5)
+        dist = np.asarray(spec.dist, dtype=np.float64)
+        dist[:5] += DIST_VARIATION[spec.model] * rng.standard_normal(5)
         params = np.concatenate([[fx, fx * (1 + 1e-3 * rng.standard_normal()), cx, cy], dist])
-        cams.append(Camera(f"cam{i}", "opencv5", params, spec.width, spec.height, look_at(eye, center)))
+        cams.append(Camera(f"cam{i}", spec.model, params, spec.width, spec.height, look_at(eye, center)))
     return Rig(cams)
