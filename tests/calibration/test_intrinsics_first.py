@@ -131,3 +131,72 @@ def test_a_camera_with_known_intrinsics_needs_one_view_only():
           f"rig's own, stated sigma of cam_1's centre {1000 * sigma_m:.1f} mm")
     np.testing.assert_array_equal(result.rig["cam_1"].params, reference["cam_1"].params)
     assert abs(baseline - baseline_ref) < 3 * sigma_m
+
+
+def _board_poses(board, n: int, depth_m: float, tilt_deg: float, shift_m: float, rng) -> list:
+    """``n`` poses of a board centred near the optical axis at ``depth_m``, tilted up to ``tilt_deg``."""
+    from scipy.spatial.transform import Rotation
+
+    from scanrig.geometry.transform import RigidTransform
+
+    centre = np.array([board.size_m[0] / 2, board.size_m[1] / 2, 0.0])
+    poses = []
+    for k in range(n):
+        R = Rotation.from_rotvec(np.deg2rad([tilt_deg * np.sin(k), tilt_deg * np.cos(1.7 * k), 5 * k])).as_matrix()
+        t = np.array([*rng.uniform(-shift_m, shift_m, 2), depth_m]) - R @ centre
+        poses.append(RigidTransform(R, t))
+    return poses
+
+
+@pytest.mark.slow
+def test_rendered_rig_far_views_with_close_intrinsic_views(tmp_path, capsys):
+    """Two rendered cameras that see the rig's board only far (4 shots at 1.2 m, 124 px wide,
+    tilts up to 10 deg), each also with 5 close views in calibration_intrinsic/<camera>/: the rig
+    solved from its views alone cannot fix the intrinsics; with the close views first, the
+    intrinsics and the baseline come out within their stated sigmas of the truth, tighter."""
+    from scipy.spatial.transform import Rotation
+
+    from scanrig.calibration.synthetic import render_board
+    from scanrig.cli.main import main
+    from scanrig.geometry.camera import Camera
+    from scanrig.geometry.transform import RigidTransform
+    from scanrig.io.rig_file import load_rig_info
+    from scanrig.io.session import write_image
+    from scanrig.targets import chessboard, save_target
+
+    rng = np.random.default_rng(41)
+    target = chessboard((7, 5), 0.03)
+    board = target.boards[0]
+    truth = np.array([620.0, 620.0, 320.0, 240.0, -0.05, 0.02, 0.0, 0.0, 0.0])
+    left = Camera("left", "opencv5", truth, 640, 480)
+    right = Camera("right", "opencv5", truth + [5, 5, -4, 3, 0, 0, 0, 0, 0], 640, 480,
+                   RigidTransform(Rotation.from_rotvec([0, -0.08, 0]).as_matrix(), np.array([-0.08, 0, 0])))
+    save_target(target, tmp_path / "target.toml")
+    for cam in (left, right):
+        (tmp_path / "calibration" / cam.name).mkdir(parents=True)
+    for k, world_from_board in enumerate(_board_poses(board, 4, 1.2, 10.0, 0.1, rng)):
+        for cam in (left, right):
+            img = render_board(board, cam, cam.cam_from_world @ world_from_board, 0.8, 2.0, rng, supersample=2)
+            write_image(tmp_path / "calibration" / cam.name / f"{k:02d}.png", img)
+    assert main(["calibrate", str(tmp_path), "--no-plots", "--no-cross-validate"]) == 0
+    out = capsys.readouterr().out
+    for cam in (left, right):
+        assert f"{cam.name}: intrinsics not determined by these views (fx ±" in out
+    alone, alone_info, _ = load_rig_info(tmp_path / "rig.toml")
+    for cam in (left, right):
+        folder = tmp_path / "calibration_intrinsic" / cam.name
+        folder.mkdir(parents=True)
+        for k, cam_from_board in enumerate(_board_poses(board, 5, 0.4, 30.0, 0.06, rng)):
+            write_image(folder / f"{k:02d}.png", render_board(board, cam, cam_from_board, 0.8, 2.0, rng, supersample=2))
+    (tmp_path / "rig.toml").unlink()
+    assert main(["calibrate", str(tmp_path), "--no-plots", "--no-cross-validate", "--refine-intrinsics"]) == 0
+    first, first_info, _ = load_rig_info(tmp_path / "rig.toml")
+    for label, rig, info in (("rig views alone", alone, alone_info), ("intrinsics first", first, first_info)):
+        baseline = np.linalg.norm(rig["left"].center_world - rig["right"].center_world)
+        fx_z = [(rig[c.name].params[0] - c.params[0]) / info[c.name]["params_std"][0] for c in (left, right)]
+        print(f"{label}: fx sigma {info['left']['params_std'][0]:.2f} / {info['right']['params_std'][0]:.2f} px, "
+              f"fx error in sigmas {np.round(fx_z, 2)}, baseline error {1000 * (baseline - 0.08):+.2f} mm")
+    for cam in (left, right):
+        std = np.array(first_info[cam.name]["params_std"])
+        assert np.all(np.abs(first[cam.name].params[:4] - cam.params[:4]) <= Z_MAX * std[:4])
+        assert np.all(std[:4] < np.array(alone_info[cam.name]["params_std"][:4]))
