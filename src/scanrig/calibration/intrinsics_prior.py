@@ -22,14 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
-from scanrig.geometry.camera import Camera
+from scanrig.geometry.camera import PINHOLE_PARAMS, Camera
 
 #: Session sub-folder with each camera's own intrinsic calibration images.
 INTRINSIC_STAGE = "calibration_intrinsic"
 #: Optional target file of those images, inside :data:`INTRINSIC_STAGE`.
 INTRINSIC_TARGET = "target.toml"
-#: Parameters named in the one-line warning when the views do not fix them.
-PINHOLE_PARAMS = ("fx", "fy", "cx", "cy")
 #: A pinhole parameter whose 1 sigma moves some pixel of its image by more than this is "not
 #: determined" (the same bound as :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`).
 UNDETERMINED_PX = 0.5
