@@ -287,3 +287,12 @@ def test_calibration_intrinsic_has_its_own_target_file(rig_session, capsys):
     (root / "calibration_intrinsic" / "target.toml").write_text('kind = "chessboard"\ninner_corners = [9, 6]\n')
     _fails(root, capsys, f"{root / 'calibration_intrinsic' / 'target.toml'}: target (kind = 'chessboard'): "
                          "missing field 'square_m'")
+
+
+def test_calibration_intrinsic_may_hold_some_cameras_whatever_session_toml_lists(rig_session, capsys):
+    """session.toml lists all four cameras; calibration_intrinsic/ holds cam_3 only, and that
+    folder (empty here) is what is named."""
+    root, _ = rig_session
+    (root / "session.toml").write_text(f"cameras = {CAMERAS!r}\n".replace("'", '"'))
+    (root / "calibration_intrinsic" / "cam_3").mkdir(parents=True)
+    _fails(root, capsys, f"{root / 'calibration_intrinsic'}: cameras ['cam_3'] have no calibration images")

@@ -118,22 +118,26 @@ def check_size(known: KnownIntrinsics, size: tuple[int, int]) -> KnownIntrinsics
 
 
 def intrinsic_folder_cameras(session) -> list[str]:
-    """Cameras with a ``calibration_intrinsic/<camera>/`` folder (none when it is absent).
+    """Cameras with a ``calibration_intrinsic/<camera>/`` folder, in rig order (any number of
+    them, whatever ``session.toml`` lists; none when the folder is absent).
 
     Raises
     ------
     FileFormatError
         A folder named after a camera the session's ``calibration/`` does not have.
     """
-    if not (session.root / INTRINSIC_STAGE).is_dir():
+    from scanrig.io.session import natural_key
+
+    folder = session.root / INTRINSIC_STAGE
+    if not folder.is_dir():
         return []
-    cameras = session.camera_names(INTRINSIC_STAGE)
+    present = {p.name for p in folder.iterdir() if p.is_dir()}
     rig_cameras = session.camera_names("calibration")
-    unknown = [c for c in cameras if c not in rig_cameras]
+    unknown = sorted(present - set(rig_cameras), key=natural_key)
     if unknown:
-        raise FileFormatError(session.root / INTRINSIC_STAGE, f"cameras {unknown} have no calibration/ folder "
-                                                              f"(the session's cameras: {rig_cameras})")
-    return cameras
+        raise FileFormatError(folder, f"cameras {unknown} have no calibration/ folder (the session's cameras: "
+                                      f"{rig_cameras})")
+    return [c for c in rig_cameras if c in present]
 
 
 def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_sizes: dict,
