@@ -22,7 +22,7 @@ from scanrig.errors import InputError, ScanrigError
 
 #: Verbs in pipeline order for ``--help``; discovered verbs not listed here follow alphabetically.
 VERB_ORDER = ("simulate", "calibrate", "relocate", "detect", "reconstruct", "filter", "scan",
-              "evaluate", "report", "design", "export", "demo")
+              "evaluate", "inspect", "report", "design", "export", "demo")
 #: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
 INTERRUPTED = 130
 ISSUES_HINT = "this is a bug in scanrig; please report it with the command line and the traceback above"
