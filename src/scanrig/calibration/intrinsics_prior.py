@@ -46,11 +46,17 @@ class KnownIntrinsics:
         source gives none.
     source : str
         Where they came from (a file, or ``calibration_intrinsic/<camera>``), for messages.
+    detail : str
+        How they were obtained, for the summary (views and RMS of a camera's own calibration).
+    warnings : tuple of str
+        The warnings of that calibration, each naming its folder.
     """
 
     camera: Camera
     params_std: np.ndarray | None
     source: str
+    detail: str = ""
+    warnings: tuple[str, ...] = ()
 
 
 def read_intrinsics_file(path: str | Path, image_sizes: dict, optional: tuple[str, ...] = ()) -> dict:
@@ -160,7 +166,8 @@ def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_s
     Returns
     -------
     dict
-        ``camera name -> KnownIntrinsics`` with the parameters' standard deviations.
+        ``camera name -> KnownIntrinsics`` with the parameters' standard deviations, the
+        calibration's views and RMS, and its warnings.
 
     Raises
     ------
@@ -179,12 +186,16 @@ def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_s
     out = {}
     for name in cameras:
         folder = f"{INTRINSIC_STAGE}/{name}"
-        obs, _ = detect_session(session, target, [name], advance, stage=INTRINSIC_STAGE)
+        obs, not_found = detect_session(session, target, [name], advance, stage=INTRINSIC_STAGE)
         try:
             result = calibrate(obs, target, model, cross_validate=False)
         except InputError as exc:
             raise InputError(f"{session.root / folder}: intrinsic calibration of {name!r} alone: {exc}") from None
-        known = KnownIntrinsics(result.rig[name], result.uncertainty.params_std[name], folder)
+        n_views = len(np.unique(obs.shot))
+        detail = (f"{n_views} of {n_views + len(not_found)} images with the target, "
+                  f"RMS {result.bundle.rms_px():.3f} px")
+        known = KnownIntrinsics(result.rig[name], result.uncertainty.params_std[name], folder, detail,
+                                tuple(f"{folder} (calibrated alone): {w}" for w in result.warnings))
         out[name] = check_size(known, image_sizes[name])
     return out
 

@@ -148,6 +148,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     warnings = list(unc.warnings)
     warnings += [line for cam in rig.cameras if cam.name not in known
                  if (line := undetermined_intrinsics(cam, unc.params_std[cam.name]))]
+    warnings += [w for k in known.values() for w in k.warnings]
     for cam_name, shot, reason in init.dropped_views:
         warnings.append(f"view {cam_name}/{shot} left out of the initialisation: {reason}")
     n_out = len(bundle.outliers)

@@ -70,7 +70,8 @@ def command(
     write_session_outputs(session, result, obs, plots, command_line)
     typer.echo(format_summary(result), nl=False)
     for name, known in result.known_intrinsics.items():
-        typer.echo(f"{name}: intrinsics {'refined from' if refine_intrinsics else 'held fixed at'} {known.source}")
+        detail = f" ({known.detail})" if known.detail else ""
+        typer.echo(f"{name}: intrinsics {'refined from' if refine_intrinsics else 'held fixed at'} {known.source}{detail}")
     typer.echo(f"wrote {Path(session) / 'rig.toml'}")
     for line in _write_light_planes(session, planes, laser[1] if laser else "", seed, command_line, plots):
         typer.echo(line, nl=False)
