@@ -61,8 +61,9 @@ def runnable_script(block: Block) -> tuple[str, list[tuple[str, str]]]:
     return "\n".join(kept_lines), left_out
 
 
-def _plan(page: Path) -> tuple[list[tuple[Block, str]], list[tuple[str, str, str]]]:
-    """The blocks of ``page`` to run (with their scripts) and what is skipped: (where, reason, command)."""
+def _plan(page: Path) -> tuple[list[tuple[Block, str, str | None]], list[tuple[str, str, str]]]:
+    """What to do for ``page``, block by block: (block, its script or '' when skipped, stand-in
+    folder or None); and what is skipped: (where, reason, command)."""
     to_run, skipped = [], []
     for block in blocks(page):
         if not block.is_command_block:
@@ -71,22 +72,23 @@ def _plan(page: Path) -> tuple[list[tuple[Block, str]], list[tuple[str, str, str
             skip = block.skip()
         except ValueError:
             skip = ("unknown mark", None)   # test_marks_are_known fails on it
-        first = next((line for line in block.commands().splitlines() if line.strip() and not line.startswith("#")), "")
+        first = next((line.split("  #")[0].strip() for line in block.commands().splitlines()
+                      if line.strip() and not line.startswith("#")), "")
         if skip is not None:
             reason, stand_in = skip
             skipped.append((block.where, reason + (f", stand-in ./{stand_in}" if stand_in else ""), first))
-            to_run.append((block, ""))   # its stand-in still has to be put in place
+            to_run.append((block, "", stand_in))
             continue
         script, left_out = runnable_script(block)
         for rule in dict.fromkeys(rule for rule, _ in left_out):   # one report per rule and block
             skipped.append((block.where, rule, "; ".join(c for r, c in left_out if r == rule)))
         if script:
-            to_run.append((block, script))
+            to_run.append((block, script, None))
     return to_run, skipped
 
 
 PLANS = {page: _plan(page) for page in PAGES}
-RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if any(script for _, script in to_run)]
+RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if any(script for _, script, _ in to_run)]
 SKIPPED = [item for _, skipped in PLANS.values() for item in skipped]
 
 
@@ -132,20 +134,23 @@ def sessions(tmp_path_factory):
     return Sessions(tmp_path_factory.mktemp("docs-sessions"))
 
 
+def run_page(page: Path, sessions: Sessions, workdir: Path) -> None:
+    """Run the command blocks of ``page`` in order in ``workdir`` (see the module docstring)."""
+    to_run, _ = PLANS[page] if page in PLANS else _plan(page)
+    if any(re.search(r"\bSESSION\b", script) for _, script, _ in to_run):
+        shutil.copytree(sessions.raw(), workdir / "SESSION")
+    for block, script, stand_in in to_run:
+        if stand_in is not None:
+            shutil.copytree(sessions.processed(), workdir / stand_in)
+        elif script:
+            _run(script, workdir, block.where)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 @pytest.mark.parametrize("page", RUN_PAGES, ids=[str(p.relative_to(ROOT)) for p in RUN_PAGES])
 def test_command_blocks_run_in_order(page, sessions, tmp_path):
-    to_run, _ = PLANS[page]
-    if any(re.search(r"\bSESSION\b", script) for _, script in to_run):
-        shutil.copytree(sessions.raw(), tmp_path / "SESSION")
-    for block, script in to_run:
-        if not script:
-            stand_in = block.skip()[1]
-            if stand_in is not None:
-                shutil.copytree(sessions.processed(), tmp_path / stand_in)
-            continue
-        _run(script, tmp_path, block.where)
+    run_page(page, sessions, tmp_path)
 
 
 @pytest.mark.parametrize("where, reason, command", SKIPPED, ids=[f"{w} {r}" for w, r, _ in SKIPPED])
