@@ -235,9 +235,10 @@ def opencv_stereo() -> None:
     print(f"  baseline ours {base:.5f}, cv2.stereoCalibrate {np.linalg.norm(out[6]):.5f}, "
           f"PROVENANCE (FIX_INTRINSIC) 0.0836")
     cv_ = result.cross_validation
-    for name in result.rig.names:
-        print(f"  cross-validation {name}: odd/even diff RMS {cv_.diff_rms_px[name]:.3f} px, "
-              f"predicted {cv_.expected_rms_px[name]:.3f} px")
+    for name, r in cv_.cameras.items():
+        print(f"  cross-validation {name}: odd/even diff RMS {r.measured_px:.3f} px, "
+              f"predicted {r.predicted_px:.3f} px, whitened ratio {r.ratio:.2f}" if r else
+              f"  cross-validation {name}: no common area")
 
 
 def caliscope() -> None:

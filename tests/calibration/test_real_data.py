@@ -168,4 +168,5 @@ def test_mrpt_four_pairs_converge_and_flag_what_they_cannot_determine(tmp_path):
     baseline = np.linalg.norm(rig["left"].center_world - rig["right"].center_world)
     assert baseline == pytest.approx(MRPT_BASELINE_SQUARES, rel=2e-3)
     for name in ("left", "right"):                 # the 6th-order term is what 4 views leave open
-        assert any(w.startswith(f"camera '{name}': k3 is poorly determined") for w in result.warnings)
+        assert "k3" in [p for p, _, _ in result.uncertainty.poorly_determined[name]]
+        assert sum(w.startswith(f"{name}: distortion not determined") and "k3 ±" in w for w in result.warnings) == 1

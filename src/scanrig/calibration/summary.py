@@ -1,13 +1,23 @@
-"""A one-screen text summary of a calibration, and the outlier list."""
+"""The calibration report: a one-screen text summary, the same as JSON, and the outlier list.
+
+``summary.json`` (docs/file-formats.md) carries per camera its model, parameters and their σ,
+RMS, corners used and rejected, projection σ and cross-validation, and the warnings, each a
+single line naming its camera and cause, exactly as printed.
+"""
 
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
 
-from scanrig.io.atomic import atomic_write
+from scanrig.calibration.cross_validation import CAUSES, RATIO_WARN
+from scanrig.io.atomic import atomic_write, write_text_atomic
+
+#: Version of the ``summary.json`` layout.
+SUMMARY_FORMAT_VERSION = 1
 
 
 def format_summary(result) -> str:
@@ -34,14 +44,23 @@ def format_summary(result) -> str:
                      f"{unc.rotation_std_deg[cam.name]:.4f}°")
         lines.append(f"  projection uncertainty at {result.working_distance_m[cam.name]:.3f} m: "
                      f"median {np.nanmedian(sig):.3f} px, worst {np.nanmax(sig):.3f} px")
+        poor = unc.poorly_determined[cam.name]
+        if poor:
+            lines.append("  poorly determined (1 sigma moves the image by): "
+                         + ", ".join(f"{p} {px:.2g} px" for p, _, px in poor))
     cv = result.cross_validation
     lines.append("")
     if cv is None:
         lines.append("cross-validation (odd/even shots): not run (too few shots per half)")
     else:
-        for name in result.rig.names:
-            lines.append(f"cross-validation {name}: odd/even halves differ by RMS {cv.diff_rms_px[name]:.3f} px "
-                         f"(max {cv.diff_max_px[name]:.3f} px); uncertainty predicts ~{cv.expected_rms_px[name]:.3f} px")
+        for name, r in cv.cameras.items():
+            lines.append(f"cross-validation {name}: no common area" if r is None else
+                         f"cross-validation {name}: odd/even halves differ by RMS {r.measured_px:.3f} px "
+                         f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
+                         f"(ratio {r.ratio:.2f} over {r.dof} directions)")
+        if any(r is not None and r.ratio > RATIO_WARN for r in cv.cameras.values()):
+            lines.append(f"a ratio above {RATIO_WARN:g} means the stated uncertainty is too small. Likely causes:")
+            lines += [f"  - {cause}" for cause in CAUSES]
     if result.not_found:
         lines.append(f"target not found in {len(result.not_found)} image(s): "
                      + ", ".join(f"{c}/{s}" for c, s in result.not_found[:10])
@@ -62,3 +81,84 @@ def write_outliers_csv(result, path: str | Path) -> None:
         writer.writerow(["camera", "image", "point_id", "residual_px"])
         for o in result.bundle.outliers:
             writer.writerow([o.camera, o.shot, o.point_id, f"{o.residual_px:.4f}"])
+
+
+def dropped_view_warnings(dropped_views: list) -> list[str]:
+    """One line per camera for the views the initialisation left out.
+
+    Parameters
+    ----------
+    dropped_views : list of (camera, shot, reason)
+    """
+    by_camera: dict = {}
+    for cam, shot, reason in dropped_views:
+        by_camera.setdefault(cam, []).append((shot, reason))
+    lines = []
+    for cam, views in by_camera.items():
+        shown = ", ".join(f"{shot} ({reason})" for shot, reason in views[:3])
+        more = f" and {len(views) - 3} more" if len(views) > 3 else ""
+        lines.append(f"{cam}: {len(views)} view(s) left out of the initialisation: {shown}{more}")
+    return lines
+
+
+def summary_dict(result) -> dict:
+    """The content of ``summary.json`` (docs/file-formats.md): plain JSON types only."""
+    b, unc, cv = result.bundle, result.uncertainty, result.cross_validation
+    obs = b.obs
+    outliers = [o.camera for o in b.outliers]
+    cameras = []
+    for c, cam in enumerate(result.rig.cameras):
+        sig = result.projection_sigma_px[cam.name]
+        check = None if cv is None else cv.cameras.get(cam.name)
+        cameras.append({
+            "name": cam.name,
+            "model": cam.model,
+            "width": cam.width,
+            "height": cam.height,
+            "param_names": list(cam.param_names),
+            "params": [float(v) for v in cam.params],
+            "params_std": [float(v) for v in unc.params_std[cam.name]],
+            "rms_px": b.rms_px(c),
+            "n_observations": int(np.count_nonzero((obs.camera == c) & b.inliers)),
+            "n_outliers": outliers.count(cam.name),
+            "n_views": len(np.unique(obs.shot[obs.camera == c])),
+            "center_std_m": [float(v) for v in unc.center_std_m[cam.name]],
+            "rotation_std_deg": float(unc.rotation_std_deg[cam.name]),
+            "poorly_determined": [{"param": p, "std": s, "moved_px": px}
+                                  for p, s, px in unc.poorly_determined[cam.name]],
+            "projection_sigma_px": {"depth_m": float(result.working_distance_m[cam.name]),
+                                    "median": float(np.nanmedian(sig)), "max": float(np.nanmax(sig))},
+            "cross_validation": None if check is None else {
+                "measured_px": check.measured_px, "predicted_px": check.predicted_px, "ratio": check.ratio,
+                "dof": check.dof, "max_px": check.max_px, "n_points": check.n_points},
+        })
+    return {
+        "format_version": SUMMARY_FORMAT_VERSION,
+        "target_kind": result.target.kind,
+        "n_shots": len(obs.shot_names),
+        "world_frame": f"target frame at shot {obs.shot_names[result.init.reference_shot]!r}",
+        "rms_px": b.rms_px(),
+        "sigma_px": float(b.sigma_px),
+        "n_observations": int(b.inliers.sum()),
+        "n_outliers": len(b.outliers),
+        "cross_validation_reference_camera": None if cv is None else cv.reference_camera,
+        "cameras": cameras,
+        "warnings": list(result.warnings),
+    }
+
+
+def write_summary_json(result, path: str | Path) -> None:
+    """Write :func:`summary_dict` to ``path`` atomically (NaN written as null)."""
+    text = json.dumps(_finite(summary_dict(result)), indent=2, allow_nan=False, ensure_ascii=False)
+    write_text_atomic(path, text + "\n")
+
+
+def _finite(value):
+    """``value`` with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value

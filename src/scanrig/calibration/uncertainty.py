@@ -8,7 +8,10 @@ the pseudo-inverse is used.
 
 A parameter is *poorly determined* when one standard deviation of it moves some pixel of its
 camera's image by more than :data:`POORLY_DETERMINED_PX` — a unit-free test that works alike for
-focal lengths, principal points and distortion coefficients.
+focal lengths, principal points and distortion coefficients. Every such parameter is listed in
+:attr:`Uncertainty.poorly_determined` (for the report); the warnings name them in one line per
+camera and cause: distortion here, the focal length and principal point in
+:func:`scanrig.calibration.intrinsics_prior.undetermined_intrinsics`.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, rotation_jacobians
-from scanrig.geometry.camera import Camera
+from scanrig.geometry.camera import PINHOLE_PARAMS, Camera
 from scanrig.geometry.transform import RigidTransform
 
 #: One sigma of an intrinsic parameter moving some image pixel by more than this is reported.
@@ -48,8 +51,12 @@ class Uncertainty:
         :func:`rotation_error_covariance`).
     rotation_std_deg : dict
         ``camera -> float`` RMS standard deviation of that rotation error over the three axes, degrees.
+    poorly_determined : dict
+        ``camera -> [(parameter, std, moved_px), ...]``: the parameters whose 1 sigma moves some
+        pixel by ``moved_px`` > :data:`POORLY_DETERMINED_PX`, largest first.
     warnings : list of str
-        Parameters the data cannot determine, and unobservable directions.
+        One line per camera whose distortion the data leave open, and one per unobservable
+        direction.
     """
 
     covariance: np.ndarray
@@ -57,6 +64,7 @@ class Uncertainty:
     center_std_m: dict
     rotation_cov_rad2: dict
     rotation_std_deg: dict
+    poorly_determined: dict
     warnings: list
 
 
@@ -85,20 +93,17 @@ def covariance(result: BundleResult) -> Uncertainty:
                             + "; add views with other tilts and positions of the target")
     cov = inv_scaled / scale[:, None] / scale[None, :] * result.sigma_px ** 2
     layout, state = result.layout, result.state
-    params_std, center_std, rot_cov, rot_std = {}, {}, {}, {}
+    params_std, center_std, rot_cov, rot_std, poor = {}, {}, {}, {}, {}
     for c, cam in enumerate(state.cameras):
         index = layout.intrinsics[c]
         std = np.zeros(len(cam.params))
         free = index >= 0
         std[free] = np.sqrt(np.maximum(np.diag(cov)[index[free]], 0.0))
         params_std[cam.name] = std
-        effect = _pixel_effect(cam)
-        for k in np.flatnonzero(free):
-            moved = std[k] * effect[k]
-            if moved > POORLY_DETERMINED_PX:
-                warnings.append(f"camera {cam.name!r}: {cam.param_names[k]} is poorly determined "
-                                f"(1 sigma = {std[k]:.3g} moves the image by up to {moved:.2g} px); "
-                                "add views covering the image corners, or use a simpler model")
+        moved = std * _pixel_effect(cam)
+        poor[cam.name] = [(cam.param_names[k], float(std[k]), float(moved[k]))
+                          for k in np.argsort(-moved, kind="stable") if free[k] and moved[k] > POORLY_DETERMINED_PX]
+        warnings += distortion_warning(cam.name, poor[cam.name])
         pose = layout.camera_pose[c]
         if pose is None:
             center_std[cam.name] = np.zeros(3)
@@ -110,7 +115,20 @@ def covariance(result: BundleResult) -> Uncertainty:
         center_std[cam.name] = np.sqrt(np.maximum(np.diag(J_center @ C @ J_center.T), 0.0))
         rot_cov[cam.name] = rotation_error_covariance(cam.cam_from_world.rvec, C[:3, :3])
         rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(rot_cov[cam.name]) / 3.0)))
-    return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, warnings)
+    return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, poor, warnings)
+
+
+def distortion_warning(camera: str, poorly_determined: list) -> list[str]:
+    """The one-line warning (as a list of 0 or 1) for a camera whose distortion terms are poorly
+    determined; ``poorly_determined`` as :attr:`Uncertainty.poorly_determined`. The focal length
+    and principal point have their own line."""
+    loose = [(p, s, px) for p, s, px in poorly_determined if p not in PINHOLE_PARAMS]
+    if not loose:
+        return []
+    terms = ", ".join(f"{p} ±{s:.2g} ({px:.2g} px)" for p, s, px in loose[:3])
+    more = f" and {len(loose) - 3} more" if len(loose) > 3 else ""
+    return [f"{camera}: distortion not determined by these views ({terms}{more}; 1 sigma moves the image by "
+            "that much): add views reaching the image corners, or use a simpler model"]
 
 
 def rotation_error_covariance(rvec: np.ndarray, cov_rvec: np.ndarray) -> np.ndarray:
@@ -156,7 +174,7 @@ def _image_grid(cam: Camera, samples=MAP_SAMPLES) -> np.ndarray:
     return np.column_stack([uu.ravel(), vv.ravel()])
 
 
-def _grid_points_cam(cam: Camera, depth_m: float, samples=MAP_SAMPLES):
+def grid_points_cam(cam: Camera, depth_m: float, samples=MAP_SAMPLES):
     """Pixels of the image grid and their points at ``depth_m`` in the camera frame (NaN where the
     distortion cannot be inverted)."""
     q = _image_grid(cam, samples)
@@ -169,7 +187,7 @@ def _grid_points_cam(cam: Camera, depth_m: float, samples=MAP_SAMPLES):
 def _pixel_effect(cam: Camera) -> np.ndarray:
     """(n_params,) largest pixel displacement over the image per unit change of each parameter."""
     at_origin = cam.with_pose(RigidTransform.identity())
-    _, p = _grid_points_cam(at_origin, 1.0, (9, 7))
+    _, p = grid_points_cam(at_origin, 1.0, (9, 7))
     p = p[np.all(np.isfinite(p), axis=1)]
     _, _, _, J_intr = at_origin.project_with_jacobians(p)
     return np.nanmax(np.linalg.norm(J_intr, axis=1), axis=0)
@@ -210,7 +228,7 @@ def projection_uncertainty(result: BundleResult, unc: Uncertainty, camera: int, 
     """
     cam = result.state.cameras[camera]
     layout = result.layout
-    q, p_cam = _grid_points_cam(cam, depth_m, samples)
+    q, p_cam = grid_points_cam(cam, depth_m, samples)
     p_world = cam.cam_from_world.inverse().apply(np.nan_to_num(p_cam))
     _, _, J_pose, J_intr = cam.project_with_jacobians(p_world)
     index = layout.intrinsics[camera]
@@ -224,19 +242,3 @@ def projection_uncertainty(result: BundleResult, unc: Uncertainty, camera: int, 
     sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
     sigma[~np.all(np.isfinite(p_cam), axis=1)] = np.nan
     return q, sigma
-
-
-def intrinsics_difference(cam_a: Camera, cam_b: Camera, depth_m: float, samples=MAP_SAMPLES):
-    """Pixel difference between two calibrations of one camera over its image.
-
-    Each grid pixel is unprojected with ``cam_a`` to ``depth_m`` in the camera frame and
-    projected with ``cam_b`` (poses ignored).
-
-    Returns
-    -------
-    q : ndarray of shape (n, 2)
-    diff_px : ndarray of shape (n,)
-        Length of the difference, pixels (NaN where ``cam_a`` cannot be inverted).
-    """
-    q, p_cam = _grid_points_cam(cam_a, depth_m, samples)
-    return q, np.linalg.norm(cam_b.project_cam(np.nan_to_num(p_cam, nan=-1.0)) - q, axis=1)

@@ -1,0 +1,256 @@
+"""Odd/even cross-validation: do two independent halves of the views differ as their σ says?
+
+The odd and the even shots are calibrated apart (:func:`scanrig.calibration.pipeline.calibrate`
+solves them); this module compares the two solutions and predicts their difference from *their
+own* covariances. Since the halves share no observation, their errors are independent and the
+covariance of the difference is ``Σ_odd + Σ_even`` propagated to pixels.
+
+The comparison is gauge-free: each half has its own world frame (the target at its own
+reference shot), so world coordinates cannot be compared. Instead the same 3-D points are fixed
+in the frame of the rig's *reference camera* (the first camera) and every camera projects them
+through its own intrinsics and its pose relative to the reference camera,
+``cam_from_ref = cam_from_world ∘ ref_from_world⁻¹``, in which the world frame cancels. For the
+reference camera itself only its intrinsics remain (the pose terms cancel exactly).
+
+The points are those seen at the grid pixels (:data:`~scanrig.calibration.uncertainty.MAP_SAMPLES`)
+that lie inside the convex hull of the corners *both* halves observed in that camera, at the
+camera's working distance: where both halves have data, as in use. Outside the hull a
+polynomial distortion model is an extrapolation and the halves may legitimately disagree by
+far more than any σ computed at the data.
+
+Reported per camera: ``measured_px``, the RMS over those points of the difference between the
+halves' projections; ``predicted_px``, the RMS their covariances predict there
+(``sqrt(mean trace(G_odd Σ_odd G_oddᵀ + G_even Σ_even G_evenᵀ))``, ``G`` the Jacobian of a
+projection with respect to the half's parameters, each half's in its own world frame); and
+``ratio``, the difference in units of its predicted σ: the pixel differences whitened by that
+covariance, ``sqrt(χ² / dof)`` over its ``dof`` independent directions. The plain
+``measured_px / predicted_px`` is a poor judge: one or two directions (the principal point)
+carry most of the predicted variance, so it scatters by a factor ~4 between seeds even when
+the σ are right, whereas ``ratio`` averages 7-12 directions. A ``ratio`` above
+:data:`RATIO_WARN` means the stated uncertainty is too small, and
+:func:`cross_validation_warnings` says so in one line per camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanrig.calibration.bundle import BundleResult, rotation_jacobians
+from scanrig.calibration.uncertainty import MAP_SAMPLES, Uncertainty, grid_points_cam
+from scanrig.geometry.transform import skew
+
+#: ``ratio`` above this is warned about. When the σ are right, ``ratio²`` is chi-square over
+#: ``dof`` directions divided by ``dof``; with 4 directions it exceeds 3² = 9 with probability
+#: 3e-7, with 9 directions 1e-13: a warning means a real excess.
+RATIO_WARN = 3.0
+#: Pixel-space directions whose singular value is below this fraction of the largest are left
+#: out of the whitened ratio: they carry less than 1e-6 of the largest variance, where the
+#: difference would be second-order terms and round-off rather than data. (The two halves'
+#: directions nearly coincide, so half of them fall below this.)
+WHITEN_RTOL = 1e-3
+#: Fewest grid points inside both halves' hulls for a camera to be compared.
+MIN_COMMON_POINTS = 4
+#: What a ratio above :data:`RATIO_WARN` may come from and what to do, for the report.
+CAUSES = ("systematic corner error (detector, blur, a target whose printed size or flatness differs "
+          "from target.toml): check the residual plots for patterns",
+          "board flex (a foam or card board bends by ~1 mm): use a rigid board",
+          "too few or too similar views: add views at other tilts, distances and image positions",
+          "an over-parameterised model (distortion terms the views cannot pin down): use a simpler "
+          "model (--model opencv4)")
+
+
+@dataclass(frozen=True)
+class CameraCrossValidation:
+    """The comparison of one camera's two half solutions.
+
+    Attributes
+    ----------
+    measured_px : float
+        RMS difference of the halves' projections over the common points, pixels.
+    predicted_px : float
+        RMS difference their covariances predict there, pixels.
+    max_px : float
+        Largest difference over the common points, pixels.
+    n_points : int
+        Grid points inside both halves' corner hulls.
+    ratio : float
+        The difference in units of its predicted σ: ``sqrt(χ² / dof)``, χ² of the pixel
+        differences whitened by their predicted covariance over its ``dof`` independent
+        directions. Near 1 when the σ are right. (``measured_px / predicted_px`` is dominated
+        by the one or two largest directions, typically the principal point, so one pair of
+        halves scatters it by a factor ~4 even when the σ are right.) NaN when nothing is free.
+    dof : int
+        Independent directions the ratio is taken over (free intrinsics plus 6 for the pose
+        relative to the reference camera, less those the image cannot see).
+    """
+
+    measured_px: float
+    predicted_px: float
+    max_px: float
+    n_points: int
+    ratio: float
+    dof: int
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Odd/even cross-validation of a calibration.
+
+    Attributes
+    ----------
+    cameras : dict
+        ``camera -> CameraCrossValidation``, or None where the halves' corners have fewer than
+        :data:`MIN_COMMON_POINTS` grid points in common.
+    reference_camera : str
+        Camera whose frame holds the compared 3-D points.
+    """
+
+    cameras: dict
+    reference_camera: str
+
+
+def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties: list[Uncertainty],
+                   working_distance_m: dict, samples=MAP_SAMPLES) -> CrossValidation:
+    """Measured and predicted difference between two independent half solutions, per camera.
+
+    Parameters
+    ----------
+    full : BundleResult
+        Solution from all views: defines the compared points.
+    halves : list of two BundleResult
+        Solutions from the odd and the even shots (same cameras, same order).
+    uncertainties : list of two Uncertainty
+        Their covariances (:func:`scanrig.calibration.uncertainty.covariance`).
+    working_distance_m : dict
+        ``camera -> depth (m)`` at which the points are placed.
+    samples : (int, int)
+        Grid pixels per image side.
+    """
+    ref = 0
+    out = {}
+    for c, cam in enumerate(full.state.cameras):
+        q, p_cam = grid_points_cam(cam, working_distance_m[cam.name], samples)
+        common = np.all(np.isfinite(p_cam), axis=1)
+        for half in halves:
+            common &= _inside_hull(_observed_pixels(half, c), q)
+        if np.count_nonzero(common) < MIN_COMMON_POINTS:
+            out[cam.name] = None
+            continue
+        ref_from_cam = full.state.cameras[ref].cam_from_world @ cam.cam_from_world.inverse()
+        p_ref = ref_from_cam.apply(p_cam[common])
+        projected, modes = [], []
+        for half, unc in zip(halves, uncertainties):
+            q_half, G, cols = _projection_jacobian(half, c, ref, p_ref)
+            projected.append(q_half)
+            modes.append(_sigma_modes(G, unc.covariance[np.ix_(cols, cols)]))
+        out[cam.name] = _judge(projected[1] - projected[0], np.concatenate(modes, axis=1))
+    return CrossValidation(out, full.state.cameras[ref].name)
+
+
+def _sigma_modes(G: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(2n, k) pixel effect of 1 sigma along each principal direction of ``cov``: ``G L`` with
+    ``L Lᵀ = cov``, so that the pixels' covariance is ``(G L)(G L)ᵀ``.
+
+    Parameters
+    ----------
+    G : ndarray of shape (n, 2, k)
+    cov : ndarray of shape (k, k)
+    """
+    evals, evecs = np.linalg.eigh(cov)
+    return G.reshape(-1, G.shape[2]) @ (evecs * np.sqrt(np.maximum(evals, 0.0)))
+
+
+def _judge(diff_px: np.ndarray, modes: np.ndarray) -> CameraCrossValidation:
+    """Measured against predicted difference of the halves' projections.
+
+    Each half's covariance is propagated with its own Jacobian (each half has its own world
+    frame, so its pose derivatives are taken in that frame; only the pixels are common).
+
+    Parameters
+    ----------
+    diff_px : ndarray of shape (n, 2)
+        Even minus odd projection of each common point, pixels.
+    modes : ndarray of shape (2n, m)
+        Both halves' :func:`_sigma_modes` side by side: the difference's covariance is
+        ``modes modesᵀ`` (``Σ_odd + Σ_even`` in pixels).
+    """
+    n = len(diff_px)
+    d = diff_px.ravel()
+    U, s, _ = np.linalg.svd(modes, full_matrices=False)
+    keep = s > WHITEN_RTOL * s[0] if len(s) and s[0] > 0 else np.zeros(len(s), dtype=bool)
+    z = (U[:, keep].T @ d) / s[keep]
+    dof = int(np.count_nonzero(keep))
+    return CameraCrossValidation(float(np.sqrt(d @ d / n)), float(np.sqrt(np.sum(modes ** 2) / n)),
+                                 float(np.max(np.linalg.norm(diff_px, axis=1))), n,
+                                 float(np.sqrt(z @ z / dof)) if dof else float("nan"), dof)
+
+
+def _observed_pixels(result: BundleResult, camera: int) -> np.ndarray:
+    """(n, 2) pixels of a camera's inlier observations in one solution."""
+    return result.obs.uv[result.inliers & (result.obs.camera == camera)]
+
+
+def _inside_hull(points: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(m,) whether each pixel ``q`` lies in the convex hull of ``points`` (False for all when the
+    points span no area)."""
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        return Delaunay(points).find_simplex(q) >= 0
+    except (QhullError, ValueError):
+        return np.zeros(len(q), dtype=bool)
+
+
+def _projection_jacobian(result: BundleResult, camera: int, ref: int, p_ref: np.ndarray):
+    """Pixels of points fixed in the reference camera's frame, and their Jacobian.
+
+    The point goes to the world with this solution's reference pose, ``p_world = R_refᵀ (p_ref -
+    t_ref)``, and is projected by ``camera``. Its derivatives with respect to the reference pose
+    are ``[p_world]× M`` (rotation vector; ``d(R p)/dr = -R [p]× M``) and ``-R_refᵀ`` (translation);
+    when ``camera`` is the reference they cancel those of its own pose, as they must.
+
+    Returns
+    -------
+    q : ndarray of shape (n, 2)
+    G : ndarray of shape (n, 2, k)
+        ``dq / dx[cols]``.
+    cols : list of int
+        The parameter-vector positions ``G`` differentiates by (free intrinsics, camera pose,
+        reference pose).
+    """
+    layout = result.layout
+    cam, ref_cam = result.state.cameras[camera], result.state.cameras[ref]
+    p_world = ref_cam.cam_from_world.inverse().apply(p_ref)
+    q, J_point, J_pose, J_intr = cam.project_with_jacobians(p_world)
+    index = layout.intrinsics[camera]
+    free = index >= 0
+    cols = list(index[free])
+    blocks = [J_intr[:, :, free]]
+    pose_cols = {}
+    for c, J in ((camera, J_pose), (ref, None)):
+        if layout.camera_pose[c] is None:
+            continue
+        if J is None:
+            R, M = rotation_jacobians(ref_cam.cam_from_world.rvec[None, :])
+            dp_drvec = skew(p_world) @ M[0]
+            dp_dt = np.broadcast_to(-R[0].T, dp_drvec.shape)
+            J = J_point @ np.concatenate([dp_drvec, dp_dt], axis=2)
+        start = layout.camera_pose[c].start
+        pose_cols[start] = pose_cols[start] + J if start in pose_cols else J
+    for start, J in pose_cols.items():
+        cols += list(range(start, start + 6))
+        blocks.append(J)
+    return q, np.concatenate(blocks, axis=2), cols
+
+
+def cross_validation_warnings(cv: CrossValidation | None) -> list[str]:
+    """One line per camera whose halves differ more than :data:`RATIO_WARN` times the prediction."""
+    if cv is None:
+        return []
+    return [f"{name}: the odd and even views differ by {r.ratio:.1f} sigma of their stated uncertainty "
+            f"(RMS {r.measured_px:.3g} px, predicted {r.predicted_px:.3g} px): its sigmas are too small; likely "
+            "systematic corner error, board flex, too few or too similar views, or too many distortion terms "
+            "(what to do: calibration_report/summary.txt)"
+            for name, r in cv.cameras.items() if r is not None and r.ratio > RATIO_WARN]

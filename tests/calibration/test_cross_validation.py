@@ -1,0 +1,128 @@
+"""Odd/even cross-validation: the halves judged against their own covariances, systematic errors flagged.
+
+Simulated corners of the default ChArUco cube seen by two cameras (0.1 px noise). A clean session
+must give a ratio near 1; a corner bias or a bent target, which the model does not have, must
+give a ratio above RATIO_WARN and a one-line warning naming the camera.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from scanrig.calibration.bundle import bundle_adjust, unpack
+from scanrig.calibration.cross_validation import RATIO_WARN, _projection_jacobian
+from scanrig.calibration.init import initialise
+from scanrig.calibration.pipeline import calibrate
+from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
+from scanrig.targets import cube
+
+SIGMA_PX = 0.1
+N_SHOTS = 12
+TARGET = cube()
+#: Under the model the squared ratio is chi-square over >= 6 directions divided by their number:
+#: 0.5-2 holds it with probability > 0.95 (the benchmark shows the spread over seeds).
+CLEAN_RATIO_RANGE = (0.5, 2.0)
+#: Injected corner bias: 0.3 px towards the imaged centre of the board, at the board's edge.
+BIAS_PX = 0.3
+#: Injected flex: each cube face bowed by 1 mm at its middle (a parabola along its x axis).
+FLEX_M = 0.001
+
+
+@pytest.fixture(scope="module")
+def session():
+    rng = np.random.default_rng(0)
+    cameras = ring_cameras(2, rng=rng)
+    return simulate(cameras, TARGET, N_SHOTS, SIGMA_PX, rng, cover=True, min_square_px=DETECTABLE_SQUARE_PX)
+
+
+def _cv_warnings(result) -> list[str]:
+    return [w for w in result.warnings if "the odd and even views differ" in w]
+
+
+def _biased(obs):
+    """Observations moved towards the centre of their board's image, ``BIAS_PX`` at its farthest corner."""
+    key = (obs.camera * len(obs.shot_names) + obs.shot) * len(TARGET.boards) + TARGET.board_of(obs.point_id)
+    _, view = np.unique(key, return_inverse=True)
+    count = np.bincount(view)
+    centre = np.stack([np.bincount(view, obs.uv[:, k]) / count for k in range(2)], axis=1)[view]
+    offset = obs.uv - centre
+    reach = np.zeros(len(count))
+    np.maximum.at(reach, view, np.linalg.norm(offset, axis=1))
+    return dataclasses.replace(obs, uv=obs.uv - BIAS_PX * offset / reach[view, None])
+
+
+def _bent(sim):
+    """Observations of a target whose faces are bowed by ``FLEX_M`` (calibrated as if flat)."""
+    obs = sim.obs
+    flat, board = TARGET.lookup(obs.point_id)
+    bent = flat.copy()
+    for k, b in enumerate(TARGET.boards):
+        rows = board == k
+        p_board = b.target_from_board.inverse().apply(flat[rows])
+        lo, hi = b.points_board.min(axis=0), b.points_board.max(axis=0)
+        x = (p_board[:, 0] - 0.5 * (lo[0] + hi[0])) / (0.5 * (hi[0] - lo[0]))
+        p_board[:, 2] += FLEX_M * (1.0 - x ** 2)
+        bent[rows] = b.target_from_board.apply(p_board)
+    uv = obs.uv.copy()
+    for s, pose in enumerate(sim.world_from_target):
+        for c, cam in enumerate(sim.cameras):
+            rows = (obs.shot == s) & (obs.camera == c)
+            uv[rows] += cam.project(pose.apply(bent[rows])) - cam.project(pose.apply(flat[rows]))
+    return dataclasses.replace(obs, uv=uv)
+
+
+def test_projection_jacobian_matches_finite_differences(session):
+    """dq/dx of points fixed in the reference camera's frame, the reference pose included."""
+    init = initialise(session.obs, TARGET, {c.name: c.model for c in session.cameras})
+    result = bundle_adjust(session.obs, TARGET, init.cameras, init.world_from_target, init.reference_shot)
+    p_ref = np.array([[0.05, -0.03, 0.8], [-0.1, 0.08, 0.9]])
+    step = 1e-7                                     # central differences: truncation ~1e-14 relative
+    for camera in (0, 1):
+        _, G, cols = _projection_jacobian(result, camera, 0, p_ref)
+        for j, col in enumerate(cols):
+            q = []
+            for sign in (1, -1):
+                x = result.x.copy()
+                x[col] += sign * step
+                moved = dataclasses.replace(result, state=unpack(x, result.layout, result.state))
+                q.append(_projection_jacobian(moved, camera, 0, p_ref)[0])
+            numeric = (q[0] - q[1]) / (2 * step)
+            np.testing.assert_allclose(G[:, :, j], numeric, rtol=1e-5, atol=1e-4)
+    # The reference camera sees the points in its own frame: its pose cannot move them.
+    _, G, cols = _projection_jacobian(result, 0, 0, p_ref)
+    n_intrinsics = len(result.state.cameras[0].params)
+    assert len(cols) == n_intrinsics + 6
+    assert np.abs(G[:, :, n_intrinsics:]).max() < 1e-6
+
+
+@pytest.mark.slow
+def test_clean_halves_agree_with_their_uncertainty(session):
+    result = calibrate(session.obs, TARGET, "opencv5")
+    cv = result.cross_validation
+    assert cv.reference_camera == "cam0"
+    for name, check in cv.cameras.items():
+        assert check.n_points > 100, name          # the cube covers a good part of every image
+        assert check.dof >= 6, name
+        assert CLEAN_RATIO_RANGE[0] < check.ratio < CLEAN_RATIO_RANGE[1], name
+    assert _cv_warnings(result) == []
+
+
+@pytest.mark.slow
+def test_corner_bias_is_flagged(session):
+    result = calibrate(_biased(session.obs), TARGET, "opencv5")
+    flagged = _cv_warnings(result)
+    ratios = {name: check.ratio for name, check in result.cross_validation.cameras.items()}
+    assert any(r > RATIO_WARN for r in ratios.values()), ratios
+    assert sorted(w.split(":")[0] for w in flagged) == sorted(n for n, r in ratios.items() if r > RATIO_WARN)
+    assert all(w.count("\n") == 0 for w in flagged)
+
+
+@pytest.mark.slow
+def test_board_flex_is_flagged(session):
+    result = calibrate(_bent(session), TARGET, "opencv5")
+    ratios = {name: check.ratio for name, check in result.cross_validation.cameras.items()}
+    assert all(r > RATIO_WARN for r in ratios.values()), ratios
+    assert len(_cv_warnings(result)) == len(ratios)
