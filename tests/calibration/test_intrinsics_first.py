@@ -221,3 +221,23 @@ def test_undetermined_intrinsics_line_names_the_pinhole_parameters_moving_the_im
     assert undetermined_intrinsics(cam, std) == (
         "cam1: intrinsics not determined by these views (fx ±11 px, cx ±10 px): calibrate them separately "
         "(calibration_intrinsic/cam1/ images, or --intrinsics FILE)")
+
+
+def test_refined_intrinsics_far_from_their_prior_are_named(rig_views):
+    """A prior from another lens (fx 10 prior sigmas off) is pulled back by the views and
+    warned about; the truth as prior is not."""
+    from scanrig.calibration.intrinsics_prior import KnownIntrinsics
+    from scanrig.calibration.pipeline import calibrate
+
+    _, cams, target, sim, _ = rig_views
+    for offset, warned in ((0.0, False), (10.0 * PRIOR_STD[0], True)):
+        prior = cams[0].with_params(cams[0].params + np.eye(len(PRIOR_STD))[0] * offset)
+        known = {cams[0].name: KnownIntrinsics(prior, PRIOR_STD, "other.toml")}
+        result = calibrate(sim.obs, target, "opencv5", cross_validate=False, known_intrinsics=known,
+                           refine_intrinsics=True)
+        lines = [w for w in result.warnings if "these views pull its intrinsics" in w]
+        print(lines)
+        assert len(lines) == int(warned)
+        if warned:
+            assert lines[0].startswith(f"{cams[0].name}: these views pull its intrinsics ")
+            assert f"sigma from other.toml (fx {prior.params[0]:.6g} -> " in lines[0]

@@ -31,6 +31,10 @@ INTRINSIC_TARGET = "target.toml"
 #: A pinhole parameter whose 1 sigma moves some pixel of its image by more than this is "not
 #: determined" (the same bound as :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`).
 UNDETERMINED_PX = 0.5
+#: A refined parameter this many prior sigmas from its prior is warned about: when prior and views
+#: describe the same lens, the refined value differs from the prior by at most the prior's sigma
+#: (one standard deviation), so each parameter exceeds 3 with probability under 0.3 %.
+PRIOR_PULL_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -304,3 +308,24 @@ def session_intrinsics(session, image_sizes: dict, model: str, path: str | Path 
     own = calibrate_intrinsic_folders(session, [c for c in folder_cameras if c not in from_file], model,
                                       image_sizes, progress_factory)
     return {**own, **from_file}
+
+
+def prior_pull_warning(camera: Camera, known: KnownIntrinsics) -> str | None:
+    """The one-line warning for intrinsics refined far from their prior (a prior from another
+    camera, focus or zoom), or None.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera as refined under the prior.
+    known : KnownIntrinsics
+        Its prior (``params_std`` 0: held fixed, not judged).
+    """
+    std = known.params_std
+    z = np.divide(camera.params - known.camera.params, std, out=np.zeros(len(std)), where=std > 0)
+    k = int(np.argmax(np.abs(z)))
+    if abs(z[k]) <= PRIOR_PULL_SIGMAS:
+        return None
+    return (f"{camera.name}: these views pull its intrinsics {abs(z[k]):.1f} sigma from {known.source} "
+            f"({camera.param_names[k]} {known.camera.params[k]:.6g} -> {camera.params[k]:.6g}): check that they "
+            "are this camera's at this focus and zoom, or calibrate it again")
