@@ -43,6 +43,13 @@ MIN_POINTS_PER_PLANE = 6
 #: RMS of the camera's views is at most this (pixels): a lens it models fits to about the corner
 #: noise, a fisheye misses by pixels to tens of pixels.
 ZHANG_ACCEPT_RMS_PX = 2.0
+#: view_pose: corners missing by more than MAX_VIEW_RMS_PX and this many robust sigmas are gross
+#: errors (a wrong detection); when they are at most PNP_MAX_GROSS_FRACTION of a view, its pose is
+#: solved again without them.
+PNP_GROSS_SIGMAS = 5.0
+PNP_MAX_GROSS_FRACTION = 0.25
+#: Median absolute deviation -> standard deviation for Gaussian errors.
+MAD_TO_SIGMA = 1.4826
 #: Most planes given to ``calibrateCamera`` per camera (evenly spread), to keep it fast.
 MAX_PLANES_FOR_INTRINSICS = 40
 #: Least ratio of the smaller to the larger principal spread of a board's points in one view for
@@ -88,7 +95,8 @@ def initialise(obs: Observations, target: Target, models: dict[str, str]) -> Ini
         A camera never sees the target, or the cameras do not form one connected graph through
         shared shots.
     EstimationError
-        Homographies give no usable intrinsics for a camera.
+        No initialisation fits any view of a camera; the message names the cause (detections that
+        match no lens, or corners beyond what the camera model can image).
     """
     counts = obs.view_counts()
     for c, name in enumerate(obs.camera_names):
@@ -251,35 +259,56 @@ def _plane_usable(xy_board: np.ndarray, uv: np.ndarray) -> bool:
 
 
 def view_pose(camera: Camera, target: Target, point_ids: np.ndarray, uv: np.ndarray):
-    """Pose ``cam_from_target`` of one view by PnP with the camera's intrinsics.
+    """Pose ``cam_from_target`` of one view by PnP with the camera's intrinsics, robust to a few
+    gross corner errors.
+
+    PnP on the corners' lines of sight (:func:`~scanrig.calibration.init_wide.pnp_bearings`),
+    refined with Levenberg–Marquardt on the pixels; when at most :data:`PNP_MAX_GROSS_FRACTION`
+    of the corners miss by more than :data:`MAX_VIEW_RMS_PX` and :data:`PNP_GROSS_SIGMAS` robust
+    sigmas (or have no image), PnP once more without them.
 
     Returns
     -------
     pose : RigidTransform or None
         None when PnP fails.
     rms_px : float
-        Reprojection RMS of the view at that pose (inf on failure).
+        Reprojection RMS of the view's corners at that pose, less the gross errors left out (inf
+        on failure).
     """
-    import cv2
-
     p_target, known = target.lookup(point_ids)
     p_target, uv = p_target[known], uv[known]
     if len(p_target) < MIN_POINTS_PER_VIEW:
         return None, np.inf
     xy, _ = camera.unproject(uv)
-    pose = pnp_bearings(p_target, np.column_stack([xy, np.ones(len(xy))]) / np.hypot(np.hypot(*xy.T), 1.0)[:, None])
+    bearings = np.column_stack([xy, np.ones(len(xy))]) / np.hypot(np.hypot(xy[:, 0], xy[:, 1]), 1.0)[:, None]
+    keep = np.ones(len(uv), bool)
+    for _ in range(2):
+        pose = _refined_pose(camera, p_target[keep], uv[keep], pnp_bearings(p_target[keep], bearings[keep]))
+        if pose is None:
+            return None, np.inf
+        error_px = np.linalg.norm(camera.with_pose(pose).project(p_target) - uv, axis=1)
+        gate = max(MAX_VIEW_RMS_PX, PNP_GROSS_SIGMAS * MAD_TO_SIGMA * float(np.nanmedian(error_px)))
+        gross = ~(error_px <= gate)
+        if not keep.all() or not gross.any() or gross.mean() > PNP_MAX_GROSS_FRACTION:
+            break
+        keep = ~gross
+    rms = float(np.sqrt(np.mean(error_px[keep] ** 2)))
+    return pose, rms if np.isfinite(rms) else np.inf
+
+
+def _refined_pose(camera: Camera, p_target: np.ndarray, uv: np.ndarray, pose: RigidTransform | None):
+    """``pose`` refined by Levenberg–Marquardt on the pixels (``cv2.solvePnPRefineLM``); None on failure."""
+    import cv2
+
     if pose is None:
-        return None, np.inf
+        return None
     try:
         rvec, tvec = cv2.solvePnPRefineLM(p_target, uv, camera.K, camera.dist, pose.rvec.copy(), pose.t.copy())
     except cv2.error:
-        return None, np.inf
+        return None
     if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-        return None, np.inf
-    pose = RigidTransform.from_rvec_tvec(rvec.ravel(), tvec.ravel())
-    q = camera.with_pose(pose).project(p_target)
-    rms = float(np.sqrt(np.nanmean(np.sum((q - uv) ** 2, axis=1))))
-    return pose, rms if np.isfinite(rms) else np.inf
+        return None
+    return RigidTransform.from_rvec_tvec(rvec.ravel(), tvec.ravel())
 
 
 def _spanning_tree(cam_from_target: dict, obs: Observations):

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scanrig.calibration.bundle import bundle_adjust
 from scanrig.calibration.observations import Observations
 from scanrig.errors import EstimationError, InputError
 from scanrig.geometry.camera import Camera
@@ -327,8 +328,6 @@ def _ladder(camera: Camera, obs: Observations, target: Target, c: int, views: li
             cam_from_target: list[RigidTransform]) -> Camera:
     """Single-camera bundle adjustments freeing :data:`LADDER` step by step; returns the camera
     of the last stage that solved (identity pose)."""
-    from scanrig.calibration.bundle import bundle_adjust
-
     shots = np.array([v.shot for v in views])
     rows = (obs.camera == c) & np.isin(obs.shot, shots)
     sub = Observations(np.zeros(np.count_nonzero(rows), np.int64), obs.shot[rows], obs.point_id[rows], obs.uv[rows],
