@@ -14,11 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
+from scanrig.calibration.cross_validation import CrossValidation, compare_halves, cross_validation_warnings
 from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
 from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_constraints, undetermined_intrinsics,
                                                   with_known_intrinsics)
 from scanrig.calibration.observations import Observations
-from scanrig.calibration.uncertainty import Uncertainty, covariance, intrinsics_difference, projection_uncertainty
+from scanrig.calibration.summary import dropped_view_warnings
+from scanrig.calibration.uncertainty import Uncertainty, covariance, projection_uncertainty
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.rig import Rig
 from scanrig.targets import Target
@@ -37,21 +39,6 @@ LOCATE_MIN_GATE_PX = 0.05
 LOCATE_ROUNDS = 4
 #: Median absolute deviation -> standard deviation for Gaussian errors.
 MAD_TO_SIGMA = 1.4826
-
-
-@dataclass
-class CrossValidation:
-    """Odd/even split: both halves calibrated alone, their projections compared per camera.
-
-    ``diff_rms_px``/``diff_max_px``: difference between the halves' intrinsics over the image
-    (pixel unprojected with one half at the working distance, projected with the other).
-    ``expected_rms_px``: what the full solve's uncertainty predicts for that difference (each
-    half has half the data, so ``2 x`` the full-data projection sigma).
-    """
-
-    diff_rms_px: dict
-    diff_max_px: dict
-    expected_rms_px: dict
 
 
 @dataclass
@@ -153,8 +140,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     if refine_intrinsics:
         warnings += [line for cam in rig.cameras if cam.name in known
                      if (line := prior_pull_warning(cam, known[cam.name]))]
-    for cam_name, shot, reason in init.dropped_views:
-        warnings.append(f"view {cam_name}/{shot} left out of the initialisation: {reason}")
+    warnings += dropped_view_warnings(init.dropped_views)
     n_out = len(bundle.outliers)
     if n_out > 0.05 * len(obs):
         warnings.append(f"{n_out} of {len(obs)} detections rejected as outliers (> 5 %): check the detections")
@@ -162,6 +148,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
                                known_intrinsics=known)
     if cross_validate:
         result.cross_validation = _cross_validate(obs, target, models, fixed, result, priors)
+        result.warnings += cross_validation_warnings(result.cross_validation)
     return result
 
 
@@ -189,7 +176,8 @@ def _working_distances(bundle: BundleResult, target: Target) -> dict:
 
 
 def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult, priors=None) -> CrossValidation | None:
-    halves = []
+    """Calibrate the odd and the even shots apart and compare them (None when a half cannot be solved)."""
+    halves, uncertainties = [], []
     for parity in (0, 1):
         shots = np.flatnonzero(np.arange(len(obs.shot_names)) % 2 == parity)
         sub = obs.subset(np.isin(obs.shot, shots))
@@ -197,16 +185,11 @@ def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult, 
             return None
         try:
             check_observations(sub, target)
-            halves.append(_solve(sub, target, models, fixed_params, priors, full.known_intrinsics)[1].state.cameras)
+            halves.append(_solve(sub, target, models, fixed_params, priors, full.known_intrinsics)[1])
         except InputError:
             return None
-    rms, worst, expected = {}, {}, {}
-    for c, name in enumerate(obs.camera_names):
-        _, diff = intrinsics_difference(halves[0][c], halves[1][c], full.working_distance_m[name])
-        rms[name] = float(np.sqrt(np.nanmean(diff ** 2)))
-        worst[name] = float(np.nanmax(diff))
-        expected[name] = float(2.0 * np.sqrt(np.nanmean(full.projection_sigma_px[name] ** 2)))
-    return CrossValidation(rms, worst, expected)
+        uncertainties.append(covariance(halves[-1]))
+    return compare_halves(full.bundle, halves, uncertainties, full.working_distance_m)
 
 
 def detect_session(session, target: Target, cameras: list[str] | None = None, progress=None,
@@ -329,7 +312,7 @@ def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Obse
                           command_line: str = "") -> None:
     """Write ``calibration_report/`` and then ``rig.toml`` (atomically) of a solved session."""
     from scanrig.calibration.corners_csv import write_corners_csv
-    from scanrig.calibration.summary import format_summary, write_outliers_csv
+    from scanrig.calibration.summary import format_summary, write_outliers_csv, write_summary_json
     from scanrig.io.atomic import write_text_atomic
     from scanrig.io.rig_file import save_rig
     from scanrig.io.session import Session
@@ -341,6 +324,7 @@ def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Obse
     write_corners_csv(obs, report / "corners.csv")
     write_outliers_csv(result, report / "outliers.csv")
     write_text_atomic(report / "summary.txt", format_summary(result))
+    write_summary_json(result, report / "summary.json")
     if plots:
         from scanrig.calibration.plots import write_plots
 
