@@ -72,7 +72,7 @@ def scan_of(mesh: trimesh.Trimesh, rng: np.random.Generator, n_points: int, *, p
             outlier_fraction: float = 0.1, noise_m: float = NOISE_M, max_angle_deg: float = 30.0,
             max_shift_m: float = 0.05) -> Scan:
     """``n_points`` scan points (outliers included) of ``mesh`` with the bumps of :data:`BUMPS_MM`."""
-    n_out = int(round(outlier_fraction * n_points))
+    n_out = round(outlier_fraction * n_points)
     n_surface = n_points - n_out
     normals = mesh.face_normals
     weight = mesh.area_faces * ((normals @ VIEW_DIRECTION > 0) if partial else 1.0)

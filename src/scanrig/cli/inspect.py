@@ -37,7 +37,12 @@ def command(
 
     from scanrig.cli.progress import stage_progress
     from scanrig.errors import FileFormatError, InputError
-    from scanrig.inspect import AlignmentError, inspect_cloud, load_cad, write_inspection
+    from scanrig.inspect import (
+        AlignmentError,
+        inspect_cloud,
+        load_cad,
+        write_inspection,
+    )
     from scanrig.inspect.cad import check_cad_scale
     from scanrig.inspect.outputs import check_outputs_free
     from scanrig.report.inspection_page import write_inspection_page
@@ -73,13 +78,16 @@ def command(
 
 def _read_cloud(cloud: Path):
     """The cloud's file and its ``(N, 3)`` points: a PLY, or a session's surface.ply (kept points) or points.ply."""
+    import numpy as np
+
     from scanrig.errors import FileFormatError
-    from scanrig.io.ply import read_points
+    from scanrig.io.ply import XYZ, read_ply, read_points
     from scanrig.io.session import session_file
-    from scanrig.report.session_report import surface_inliers
 
     if cloud.is_dir() and (cloud / "surface.ply").is_file():
-        return cloud / "surface.ply", surface_inliers(cloud / "surface.ply")
+        vertices, _, _ = read_ply(cloud / "surface.ply")
+        keep = vertices["inlier"] != 0 if "inlier" in vertices else slice(None)
+        return cloud / "surface.ply", np.column_stack([vertices[k][keep].astype(np.float64) for k in XYZ])
     path = session_file(cloud, "points.ply", "scanrig reconstruct")
     if path.suffix.lower() != ".ply":
         raise FileFormatError(path, f"expected a PLY cloud or a session folder, got suffix {path.suffix!r}")

@@ -56,11 +56,18 @@ def load_cad(path: str | Path, units: str = "m") -> trimesh.Trimesh:
     if not path.is_file():
         raise FileFormatError(path, "no such file")
     try:
-        mesh = trimesh.load(path, force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many types for malformed files
+        loaded = trimesh.load(path, process=True)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for malformed files
         raise FileFormatError(path, f"not a readable mesh ({type(exc).__name__}: {exc})") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+    if isinstance(loaded, trimesh.Scene):                 # several bodies: one mesh in the scene's frame
+        bodies = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
+        loaded = trimesh.util.concatenate(bodies) if bodies else loaded
+    if isinstance(loaded, trimesh.PointCloud) or (isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices)
+                                                   and not len(loaded.faces)):
         raise FileFormatError(path, "holds no triangles (a CAD model must be a triangle mesh, not points)")
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise FileFormatError(path, "not a readable mesh (no triangles found)")
+    mesh = loaded
     if not np.all(np.isfinite(mesh.vertices)) or mesh.area <= 0:
         raise FileFormatError(path, "the mesh has non-finite vertices or zero area")
     mesh.apply_scale(CAD_UNITS_M[units])

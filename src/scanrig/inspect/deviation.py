@@ -75,6 +75,6 @@ def deviation_stats(deviation_m: np.ndarray, tolerance_m: float) -> DeviationSta
     """:class:`DeviationStats` of ``(N,)`` deviations (metres) against ``tolerance_m``."""
     a = np.abs(deviation_m)
     return DeviationStats(
-        n_points=int(len(deviation_m)), rms_m=float(np.sqrt(np.mean(deviation_m ** 2))),
+        n_points=len(deviation_m), rms_m=float(np.sqrt(np.mean(deviation_m ** 2))),
         mean_m=float(np.mean(deviation_m)), p95_abs_m=float(np.percentile(a, 95)), max_abs_m=float(a.max()),
         tolerance_m=float(tolerance_m), within_tolerance=float(np.mean(a <= tolerance_m)))

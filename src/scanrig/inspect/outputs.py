@@ -107,7 +107,8 @@ def write_inspection(inspection: Inspection, out_dir: Path, *, points_m: np.ndar
     p = inspection.points_cad(points_m)
     rgb = deviation_rgb(inspection.deviation_m, inspection.stats.tolerance_m)
     comments = [f"written by {WRITTEN_BY}: {' '.join(title.split())}", "units m", "frame CAD",
-                f"deviation_m signed {'yes, positive outside the material' if inspection.signed else 'no (open CAD mesh)'}",
+                ("deviation_m " + ("signed, positive outside the material" if inspection.signed
+                                   else "unsigned (open CAD mesh)")),
                 f"colour {COLOUR_MAP} from -{COLOUR_SPAN_TOLERANCES:g} to +{COLOUR_SPAN_TOLERANCES:g} tolerances "
                 f"(tolerance {inspection.stats.tolerance_m:g} m)", f"seed {inspection.seed}"]
     write_ply(out_dir / PLY_NAME, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2],

@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.inspect.inspection import Inspection
-from scanrig.inspect.outputs import COLOUR_MAP, COLOUR_SPAN_TOLERANCES, HTML_NAME, WRITTEN_BY, check_outputs_free
+from scanrig.inspect.outputs import (
+    COLOUR_MAP,
+    COLOUR_SPAN_TOLERANCES,
+    HTML_NAME,
+    WRITTEN_BY,
+    check_outputs_free,
+)
 from scanrig.io.atomic import write_text_atomic
 from scanrig.report import plots
 from scanrig.report.html import Section, page
@@ -21,6 +27,8 @@ from scanrig.report.viewer import MAX_VIEWER_POINTS, subsample, viewer_html
 
 #: Points drawn in the static views.
 VIEW_POINTS = 60_000
+#: The histogram's axis spans this percentile of |deviation| (and at least the colour span).
+HIST_PERCENTILE = 99.9
 #: The static views: (title, horizontal axis, vertical axis, depth axis towards the viewer).
 VIEWS = (("top (looking down -z)", 0, 1, 2), ("front (looking along +y)", 0, 2, -2), ("side (looking along -x)", 1, 2, 1))
 
@@ -49,9 +57,9 @@ def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rn
     verdict.text(_alignment_line(inspection))
     for warning in inspection.warnings:
         verdict.text(f"Warning: {warning}")
-    verdict.note(f"written by {WRITTEN_BY}; deviation is {'signed: positive outside the material (a bump), '
-                 'negative inside (a dent)' if inspection.signed else 'unsigned (the CAD mesh is not closed)'}; "
-                 "coordinates in the CAD frame.")
+    sign = ("signed: positive outside the material (a bump), negative inside (a dent)" if inspection.signed
+            else "unsigned (the CAD mesh is not closed)")
+    verdict.note(f"written by {WRITTEN_BY}; deviation is {sign}; coordinates in the CAD frame.")
 
     view = Section("Deviation map")
     view.image(_views_uri(p, dev_mm, tol_mm, rng), "deviation seen from three sides")
@@ -63,8 +71,7 @@ def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rn
                                    ("|deviation| / tolerance", "", np.abs(dev_mm[keep]) / tol_mm)], "inspection"))
 
     hist = Section("Histogram")
-    hist.image(plots.histogram_figure(dev_mm, "deviation (mm)", f"{stats.n_points} points", marker=tol_mm,
-                                      marker_label=f"tolerance {tol_mm:.3g} mm"), "histogram of the deviations")
+    hist.image(_histogram_uri(dev_mm, tol_mm, inspection.signed), "histogram of the deviations")
 
     table = Section("Statistics")
     table.table(["quantity", "value"], [
@@ -113,6 +120,23 @@ def _views_uri(p_cad_m: np.ndarray, dev_mm: np.ndarray, tol_mm: float, rng: np.r
         ax.set_ylabel(f"{'xyz'[v]} (mm)")
         ax.set_title(name, fontsize=10)
     fig.colorbar(art, ax=axes, label="deviation (mm)", shrink=0.9)
+    return plots.figure_uri(fig)
+
+
+def _histogram_uri(dev_mm: np.ndarray, tol_mm: float, signed: bool) -> str:
+    """Histogram of the deviations (mm) with the tolerance band; the axis spans the 99.9 % central
+    deviations and at least twice the tolerance (beyond: counted in the end bins)."""
+    plt = plots._pyplot()
+    top = max(float(np.percentile(np.abs(dev_mm), HIST_PERCENTILE)), COLOUR_SPAN_TOLERANCES * tol_mm)
+    lo = -top if signed else 0.0
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    ax.hist(np.clip(dev_mm, lo, top), bins=plots.HIST_BINS, range=(lo, top), log=True, color="tab:blue")
+    for x in ((-tol_mm, tol_mm) if signed else (tol_mm,)):
+        ax.axvline(x, color="tab:red", ls="--")
+    ax.set_xlabel("deviation (mm)" + ("; positive outside the material" if signed else ", unsigned"))
+    ax.set_ylabel("points")
+    ax.set_title(f"{len(dev_mm)} points; dashed: tolerance ±{tol_mm:.3g} mm", fontsize=9)
+    fig.tight_layout()
     return plots.figure_uri(fig)
 
 
