@@ -205,22 +205,14 @@ def test_rendered_rig_far_views_with_close_intrinsic_views(tmp_path, capsys):
         assert np.all(std[:4] < np.array(alone_info[cam.name]["params_std"][:4]))
 
 
-def test_undetermined_intrinsics_line_names_the_pinhole_parameters_moving_the_image_over_half_a_pixel():
-    from scanrig.calibration.intrinsics_prior import (
-        UNDETERMINED_PX,
-        undetermined_intrinsics,
-    )
-    from scanrig.geometry.camera import Camera
+def test_undetermined_intrinsics_line_names_the_open_pinhole_parameters_in_their_order():
+    from scanrig.calibration.intrinsics_prior import undetermined_intrinsics
 
-    cam = Camera("cam1", "opencv5", np.array([800.0, 800.0, 600.0, 360.0, 0, 0, 0, 0, 0]), 1280, 720)
-    # sigma(fx) moves the farthest column (679 px from cx) by sigma * 679 / 800.
-    fx_limit = UNDETERMINED_PX * 800.0 / 679.0
-    std = np.array([0.99 * fx_limit, 0.1, 0.99 * UNDETERMINED_PX, 0.1, 0.01, 0.01, 0.001, 0.001, 0.01])
-    assert undetermined_intrinsics(cam, std) is None                        # distortion is not its business
-    std[[0, 2]] = [11.0, 10.0]
-    assert undetermined_intrinsics(cam, std) == (
+    poorly = [("k3", 13.4, 51.0), ("cx", 10.0, 10.0), ("k1", 0.12, 11.0), ("fx", 11.0, 9.3)]
+    assert undetermined_intrinsics("cam1", poorly) == (
         "cam1: intrinsics not determined by these views (fx ±11 px, cx ±10 px): calibrate them separately "
         "(calibration_intrinsic/cam1/ images, or --intrinsics FILE)")
+    assert undetermined_intrinsics("cam1", poorly[::2]) is None             # distortion has its own line
 
 
 def test_refined_intrinsics_far_from_their_prior_are_named(rig_views):

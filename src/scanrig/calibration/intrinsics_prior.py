@@ -28,9 +28,6 @@ from scanrig.geometry.camera import PINHOLE_PARAMS, Camera
 INTRINSIC_STAGE = "calibration_intrinsic"
 #: Optional target file of those images, inside :data:`INTRINSIC_STAGE`.
 INTRINSIC_TARGET = "target.toml"
-#: A pinhole parameter whose 1 sigma moves some pixel of its image by more than this is "not
-#: determined" (the same bound as :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`).
-UNDETERMINED_PX = 0.5
 #: A refined parameter this many prior sigmas from its prior is warned about: when prior and views
 #: describe the same lens, the refined value differs from the prior by at most the prior's sigma
 #: (one standard deviation), so each parameter exceeds 3 with probability under 0.3 %.
@@ -248,32 +245,30 @@ def with_known_intrinsics(cameras: list[Camera], known: dict) -> list[Camera]:
     return out
 
 
-def undetermined_intrinsics(camera: Camera, params_std: np.ndarray) -> str | None:
-    """The one-line warning for a camera whose focal length or principal point its views leave open.
-
-    A pinhole parameter is not determined when its 1 sigma moves some pixel of the image by more
-    than :data:`UNDETERMINED_PX`: ``sigma(cx)`` moves every pixel by itself, ``sigma(fx)`` the
-    image's farthest column from ``cx`` by ``sigma(fx) * max|u - cx| / fx``.
+def undetermined_intrinsics(camera: str, poorly_determined: list) -> str | None:
+    """The one-line warning for a camera whose views leave its focal length or principal point open,
+    or None.
 
     Parameters
     ----------
-    camera : Camera
-    params_std : ndarray of shape (n_params,)
-        Standard deviations of its parameters from the joint solve (0 = held fixed).
+    camera : str
+    poorly_determined : list of (parameter, std, moved_px)
+        The parameters whose 1 sigma moves some pixel of the image by more than
+        :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`
+        (:attr:`scanrig.calibration.uncertainty.Uncertainty.poorly_determined`).
 
     Returns
     -------
     str or None
-        ``"cam1: intrinsics not determined by these views (fx ±11 px, cx ±10 px): ..."``, or None.
+        ``"cam1: intrinsics not determined by these views (fx ±11 px, cx ±10 px): ..."`` (the
+        pinhole parameters in their order), or None.
     """
-    fx, fy, cx, cy = camera.params[:4]
-    reach = np.array([max(cx, camera.width - 1 - cx) / fx, max(cy, camera.height - 1 - cy) / fy, 1.0, 1.0])
-    std = np.asarray(params_std[:4], dtype=float)
-    loose = [f"{p} ±{s:.2g} px" for p, s, moved in zip(PINHOLE_PARAMS, std, std * reach) if moved > UNDETERMINED_PX]
+    std = {p: s for p, s, _ in poorly_determined}
+    loose = [f"{p} ±{std[p]:.2g} px" for p in PINHOLE_PARAMS if p in std]
     if not loose:
         return None
-    return (f"{camera.name}: intrinsics not determined by these views ({', '.join(loose)}): calibrate them "
-            f"separately ({INTRINSIC_STAGE}/{camera.name}/ images, or --intrinsics FILE)")
+    return (f"{camera}: intrinsics not determined by these views ({', '.join(loose)}): calibrate them "
+            f"separately ({INTRINSIC_STAGE}/{camera}/ images, or --intrinsics FILE)")
 
 
 def session_intrinsics(session, image_sizes: dict, model: str, path: str | Path | None = None,

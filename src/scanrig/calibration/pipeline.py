@@ -135,7 +135,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
                  for c, name in enumerate(rig.names)}
     warnings = list(unc.warnings)
     warnings += [line for cam in rig.cameras if cam.name not in known
-                 if (line := undetermined_intrinsics(cam, unc.params_std[cam.name]))]
+                 if (line := undetermined_intrinsics(cam.name, unc.poorly_determined[cam.name]))]
     warnings += [w for k in known.values() for w in k.warnings]
     if refine_intrinsics:
         warnings += [line for cam in rig.cameras if cam.name in known
