@@ -241,20 +241,30 @@ def opencv_stereo() -> None:
               f"  cross-validation {name}: no common area")
 
 
+#: caliscope's detections of its 4-webcam rig (``tests/data`` holds a copy).
+CALISCOPE_CSV = SHARED / "caliscope-4cam-charuco" / "post_optimization" / "CHARUCO" / "xy_CHARUCO.csv"
+
+
+def caliscope_observations() -> Observations:
+    """The detections of :data:`CALISCOPE_CSV`, cameras ``cam_0..cam_3``, one shot per sync index."""
+    with open(CALISCOPE_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    shots = sorted({int(r["sync_index"]) for r in rows})
+    names = [f"cam_{i}" for i in range(4)]
+    return Observations(np.array([int(r["cam_id"]) for r in rows]),
+                        np.searchsorted(shots, [int(r["sync_index"]) for r in rows]),
+                        np.array([int(r["keypoint_id"]) for r in rows]),
+                        np.array([[float(r["img_loc_x"]), float(r["img_loc_y"])] for r in rows]),
+                        np.ones(len(rows)), names, [str(s) for s in shots], {n: (1280, 720) for n in names})
+
+
 def caliscope() -> None:
-    path = SHARED / "caliscope-4cam-charuco" / "post_optimization" / "CHARUCO" / "xy_CHARUCO.csv"
-    if not path.is_file():
+    if not CALISCOPE_CSV.is_file():
         print("\n## 3b. caliscope: data absent, skipped")
         return
     print("\n## 3b. Real data caliscope-4cam-charuco (2175 given detections, 4 webcams 1280x720, opencv4)")
-    rows = list(csv.DictReader(open(path, newline="")))
-    shots = sorted({int(r["sync_index"]) for r in rows})
-    names = [f"cam_{i}" for i in range(4)]
-    obs = Observations(np.array([int(r["cam_id"]) for r in rows]),
-                       np.searchsorted(shots, [int(r["sync_index"]) for r in rows]),
-                       np.array([int(r["keypoint_id"]) for r in rows]),
-                       np.array([[float(r["img_loc_x"]), float(r["img_loc_y"])] for r in rows]),
-                       np.ones(len(rows)), names, [str(s) for s in shots], {n: (1280, 720) for n in names})
+    obs = caliscope_observations()
+    shots = obs.shot_names
     t0 = time.perf_counter()
     result = calibrate(obs, charuco((4, 5), 0.054, 0.0405, "DICT_4X4_1000"), "opencv4", cross_validate=False)
     dt = time.perf_counter() - t0

@@ -6,6 +6,10 @@ Run ``python benchmarks/bench_cross_validation.py`` (20 seeds x 10, 20, 40, 80 s
 moved over every camera's field of view (``covering_target_poses``), corners seen up to 70 deg from
 their face normal while their squares image >= 16 px, Gaussian noise of 0.1 px.
 
+With ``--caliscope`` it also calibrates the real 4-webcam ChArUco rig of
+``../shared/data/caliscope-4cam-charuco`` (opencv4, rig views alone) and prints its
+cross-validation and warnings.
+
 For each camera it prints the whitened ratio (``sqrt(chi2 / dof)`` of the halves' difference
 against ``Sigma_odd + Sigma_even``; 1 when the sigmas are right) and, for comparison, the plain
 ratio of the RMS pixel differences, measured / predicted, which one or two directions (the
@@ -27,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from scanrig.calibration.pipeline import calibrate  # noqa: E402
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate  # noqa: E402
-from scanrig.targets import cube  # noqa: E402
+from scanrig.targets import charuco, cube  # noqa: E402
 
 SIGMA_PX = 0.1
 
@@ -36,7 +40,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--shots", default="10,20,40,80", help="comma-separated shot counts")
+    parser.add_argument("--caliscope", action="store_true", help="also the real 4-webcam rig")
     args = parser.parse_args()
+    if args.caliscope:
+        caliscope()
     target = cube()
     with open("/proc/loadavg") as f:
         print(f"load: {f.read().strip()}")
@@ -72,6 +79,20 @@ def main() -> None:
     w, p = np.concatenate(list(whitened.values())), np.concatenate(list(plain.values()))
     print(f"  all | {np.median(w):.2f} [{w.min():.2f}, {w.max():.2f}] | {np.median(p):.2f} [{p.min():.2f}, "
           f"{p.max():.2f}] | {len(w)}; whitened within 0.5-2: {np.count_nonzero((w >= 0.5) & (w <= 2))}/{len(w)}")
+
+
+def caliscope() -> None:
+    """Cross-validation and warnings of the real 4-webcam rig calibrated from its rig views alone."""
+    from bench_calibration import caliscope_observations
+
+    result = calibrate(caliscope_observations(), charuco((4, 5), 0.054, 0.0405, "DICT_4X4_1000"), "opencv4")
+    print("caliscope-4cam-charuco, opencv4, rig views alone:")
+    for name, r in result.cross_validation.cameras.items():
+        print(f"  {name}: whitened ratio {r.ratio:.2f} ({r.dof}), {r.measured_px:.1f}/{r.predicted_px:.1f} px"
+              if r else f"  {name}: no common area")
+    print(f"  {len(result.warnings)} warning lines:")
+    for line in result.warnings:
+        print(f"  WARNING: {line}")
 
 
 if __name__ == "__main__":

@@ -102,6 +102,7 @@ def test_projection_jacobian_matches_finite_differences(session):
 def test_clean_halves_agree_with_their_uncertainty(session):
     result = calibrate(session.obs, TARGET, "opencv5")
     cv = result.cross_validation
+    print("clean corners: ratio", {name: round(check.ratio, 2) for name, check in cv.cameras.items()})
     assert cv.reference_camera == "cam0"
     for name, check in cv.cameras.items():
         assert check.n_points > 100, name          # the cube covers a good part of every image
@@ -115,6 +116,7 @@ def test_corner_bias_is_flagged(session):
     result = calibrate(_biased(session.obs), TARGET, "opencv5")
     flagged = _cv_warnings(result)
     ratios = {name: check.ratio for name, check in result.cross_validation.cameras.items()}
+    print(f"{BIAS_PX} px corner bias: ratio", {name: round(r, 2) for name, r in ratios.items()})
     assert any(r > RATIO_WARN for r in ratios.values()), ratios
     assert sorted(w.split(":")[0] for w in flagged) == sorted(n for n, r in ratios.items() if r > RATIO_WARN)
     assert all(w.count("\n") == 0 for w in flagged)
@@ -124,5 +126,6 @@ def test_corner_bias_is_flagged(session):
 def test_board_flex_is_flagged(session):
     result = calibrate(_bent(session), TARGET, "opencv5")
     ratios = {name: check.ratio for name, check in result.cross_validation.cameras.items()}
+    print(f"{FLEX_M * 1000:g} mm face flex: ratio", {name: round(r, 2) for name, r in ratios.items()})
     assert all(r > RATIO_WARN for r in ratios.values()), ratios
     assert len(_cv_warnings(result)) == len(ratios)
