@@ -16,18 +16,27 @@ DONE_LINE = r"{}: done, {} in \d+\.\d s"
 
 
 @pytest.mark.slow
-def test_scan_into_a_log_prints_its_frames_with_counts(tmp_path, capsys):
-    """stdout is not a terminal under pytest: a start line with the beam budget and an end line with
-    the frames taken (the scan stops early here: too few points to estimate the surface)."""
+def test_scan_into_a_log_prints_each_pass_with_counts(tmp_path, capsys):
+    """stdout is not a terminal under pytest: each pass's frames are grabbed, then processed, each
+    stage with a start and an end line (counts of the pass's beams)."""
     argv = ["scan", str(tmp_path / "s"), "--sim", SCAN_SCENE, "--sim-scale", "0.25", "--spacing-mm", "12",
-            "--roi-mm=-70,-70,5,70,70,130", "--workers", "1", "--budget", "12", "--seed", "3"]
+            "--roi-mm=-70,-70,5,70,70,130", "--workers", "1", "--budget", "40", "--seed", "3"]
     assert main(argv) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == "scanning frames: started, 12 to do"
-    n_frames = int(out[-1].split()[0])   # "N frames in P passes (...)"
-    assert 1 < n_frames <= 12
-    assert re.fullmatch(DONE_LINE.format("scanning frames", f"{n_frames}/{n_frames}"), out[-2])
-    assert all(re.fullmatch(r"scanning frames: \d+/12, .*", line) for line in out[1:-2])
+    assert out[0] == "preparing (dark frame, first beams): started"
+    assert re.fullmatch(r"preparing \(dark frame, first beams\): done in \d+\.\d s", out[1])
+    n_frames, n_passes = map(int, re.match(r"(\d+) frames in (\d+) passes", out[-1]).groups())
+    assert n_frames == 40 and n_passes >= 2
+    grabbed = 0
+    for k in range(1, n_passes + 1):
+        started = next(line for line in out if line.startswith(f"pass {k}: grabbing frames: started"))
+        n_beams = int(re.fullmatch(rf"pass {k}: grabbing frames: started, (\d+) to do", started).group(1))
+        assert any(re.fullmatch(DONE_LINE.format(f"pass {k}: grabbing frames", f"{n_beams}/{n_beams}"), line)
+                   for line in out)
+        assert f"pass {k}: processing frames: started" in out
+        assert any(re.fullmatch(rf"pass {k}: processing frames: done in \d+\.\d s", line) for line in out)
+        grabbed += n_beams
+    assert grabbed == n_frames
 
 
 @pytest.fixture()

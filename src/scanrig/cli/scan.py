@@ -82,19 +82,44 @@ def command(
         calibrated = load_rig(session / "rig.toml")   # as a resumed scan will read it
     process = SpotProcessor(calibrated, color=settings["laser_color"], dark=store.dark_paths())
     rng = np.random.default_rng(settings["seed"])
-    budget = settings["budget"]   # the scan stops at the budget or earlier, once the surface is covered
     with make_executor(scheduler, workers) as executor, stage_progress() as progress:
-        progress("scanning frames", len(store.state.frames), budget)
-        result = run_scan(store, cameras, positioner, config, process, rng, budget, executor=executor,
-                          on_frame=lambda stem, done, planned: progress("scanning frames", done, budget),
+        progress("preparing (dark frame, first beams)", 0, None)
+        report = _PassProgress(progress, len(store.state.passes) - bool(store.state.pending))
+        result = run_scan(store, cameras, positioner, config, process, rng, settings["budget"], executor=executor,
+                          on_frame=report.frame,
                           grab_timeout_s=None if camera is None else GRAB_TIMEOUT_S)
-        n_frames = len(store.state.frames)
-        progress("scanning frames", n_frames, n_frames)   # ends the stage at the frames taken
+    n_frames = len(store.state.frames)
     out = Session(session).points_path
     stopped = f"scanrig scan: {n_frames} frames, {result.n_passes} passes, stopped: {result.reason}"
     write_points(out, result.points, comments=(f"seed: {settings['seed']}", stopped))
     typer.echo(f"{n_frames} frames in {result.n_passes} passes ({result.reason}); "
                f"{len(result.points)} points -> {out}")
+
+
+class _PassProgress:
+    """Progress of the scanning loop, pass by pass: the pass's frames are grabbed, then processed
+    together once its last beam is grabbed.
+
+    Parameters
+    ----------
+    progress : callable
+        ``progress(stage, done, total)`` (:func:`scanrig.cli.progress.stage_progress`).
+    n_passes : int
+        Passes of the scan already complete (a resumed one).
+    """
+
+    def __init__(self, progress, n_passes: int):
+        self.progress, self.n_passes, self.first = progress, n_passes, None
+
+    def frame(self, stem: str, done: int, planned: int) -> None:
+        """``run_scan``'s ``on_frame``: ``done`` frames of the ``planned`` beams so far."""
+        if self.first is None:
+            self.n_passes, self.first = self.n_passes + 1, done - 1
+        stage = f"pass {self.n_passes}"
+        self.progress(f"{stage}: grabbing frames", done - self.first, planned - self.first)
+        if done == planned:
+            self.progress(f"{stage}: processing frames", 0, None)
+            self.first = None
 
 
 def _check_same(recorded: dict, given: dict, session: Path) -> None:
