@@ -11,7 +11,13 @@ from scanrig.cli.main import main
 from scanrig.errors import FileFormatError
 from scanrig.report import write_report
 from scanrig.report.viewer import subsample
-from tests.report.synth import N_OUTLIERS, N_POINTS, NOISE_M, OUTLIER_OFFSET_M, make_session
+from tests.report.synth import (
+    N_OUTLIERS,
+    N_POINTS,
+    NOISE_M,
+    OUTLIER_OFFSET_M,
+    make_session,
+)
 
 OUTLIER_SHARE = N_OUTLIERS / N_POINTS
 #: The viewer ships float32 coordinates of a unit-radius cloud: half an ulp per axis, at most
@@ -49,13 +55,30 @@ def test_report_figures_come_from_the_files(session):
     assert _figure(html, "points") == str(N_POINTS)
     # Outliers dominate the RMS: sqrt(share * offset^2 + noise^2) up to the mesh's own error.
     expected_mm = np.sqrt(OUTLIER_SHARE * OUTLIER_OFFSET_M**2 + NOISE_M**2) * 1e3
-    rms_mm = float(_figure(html, "RMS distance of points.ply to the truth").split()[0])
+    rms_mm = float(_figure(html, "RMS distance to the truth, all points").split()[0])
     assert rms_mm == pytest.approx(expected_mm, rel=RMS_WITH_OUTLIERS_TOLERANCE)
-    surface_mm = float(_figure(html, "RMS distance of surface.ply to the truth").split()[0])
+    surface_mm = float(_figure(html, "RMS distance to the truth, points the filter kept").split()[0])
     assert surface_mm == pytest.approx(NOISE_M * 1e3, rel=RMS_INLIERS_TOLERANCE)   # inliers only
-    for anchor in ("summary", "calibration", "laser-detection", "point-cloud", "sampling-density",
-                   "accuracy-against-truth", "run-parameters-versions-seed"):
-        assert f'<section id="{anchor}">' in html
+    assert _figure(html, "points the filter removed") == str(N_OUTLIERS)
+    anchors = ["verdict", "summary", "calibration", "laser-detection", "point-cloud", "sampling-density",
+               "accuracy-against-truth", "run-parameters-versions-seed"]
+    positions = [html.index(f'<section id="{anchor}">') for anchor in anchors]
+    assert positions == sorted(positions)                  # the verdict opens the page
+
+
+def test_verdict_quotes_the_figures_of_scanrig_evaluate(session, capsys):
+    """One definition: the verdict's RMS before and after the filter are the ones `scanrig evaluate` prints."""
+    html = write_report(session, rng=np.random.default_rng(7)).read_text()
+    verdict = html[html.index('<section id="verdict">'):html.index('<section id="summary">')]
+    assert main(["evaluate", str(session)]) == 0
+    printed = capsys.readouterr().out
+    before = re.search(r"(\d+) points: RMS ([0-9.]+) mm", printed)
+    after = re.search(r"after the filter: (\d+) kept, (\d+) removed: RMS ([0-9.]+) mm", printed)
+    assert before.group(1) == str(N_POINTS) and after.group(2) == str(N_OUTLIERS)
+    assert f"RMS {before.group(2)} mm: the RMS of the distances of all {N_POINTS} points" in verdict
+    assert f"RMS {after.group(3)} mm over the {after.group(1)} points it kept; it removed {N_OUTLIERS}" in verdict
+    coverage = re.search(r"coverage: ([0-9.]+) %", printed).group(1)
+    assert f"{coverage} % of the true surface" in verdict
 
 
 def test_report_is_self_contained(session):
@@ -81,6 +104,12 @@ def test_viewer_ships_a_subsample_of_the_cloud(session):
     assert np.max(d) < FLOAT32_EPS_RELATIVE * data["radius_m"]
     labels = [f["label"] for f in data["fields"]]
     assert labels[:2] == ["distance to true surface", "uncertainty (1-sigma, largest axis)"]
+    faces = np.frombuffer(base64.b64decode(data["mesh_faces"]), "<u4").reshape(-1, 3)
+    mesh_xyz = np.frombuffer(base64.b64decode(data["mesh_xyz"]), "<f4").reshape(-1, 3)
+    from scanrig.io.ply import read_ply
+
+    vertices, mesh_faces, _ = read_ply(session / "mesh.ply")
+    assert len(faces) == len(mesh_faces) and len(mesh_xyz) == len(vertices["x"])   # the whole mesh.ply
 
 
 def test_subsample_is_sorted_unique_and_bounded():

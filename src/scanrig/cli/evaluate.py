@@ -16,50 +16,39 @@ def command(
     histogram: Annotated[Optional[Path], typer.Option(
         help="Histogram PNG to write (default: next to POINTS, <stem>_distances.png).")] = None,
     outlier_mm: Annotated[float, typer.Option(min=0.0, help="Distance counted as an outlier (mm).")] = 1.0,
-    include_ambiguous: Annotated[bool, typer.Option(help="Also count points flagged AMBIGUOUS.")] = False,
     rig: Annotated[Optional[Path], typer.Option(
         help="The rig the points were reconstructed with, when it is not the true one (e.g. scanrig's own "
-             "calibration): its world frame is aligned to truth/rig.toml through the camera poses. A rig.toml "
-             "or a session folder (its rig.toml).")] = None,
+             "calibration): its world frame is tied to truth/rig.toml through the camera poses, unless its "
+             "[metadata] world_frame is \"scene\" (the demo's rig.toml). A rig.toml or a session folder "
+             "(its rig.toml).")] = None,
 ):
-    """Print distance statistics of points to the true surface and write a histogram.
+    """Print the accuracy of a cloud against the true surface and write a histogram.
 
-    Reports RMS, mean, 95th and 99th percentile, maximum and the fraction of points farther than
-    --outlier-mm from the union of the true meshes.
+    The accuracy is the RMS of the distances of every point of POINTS to the union of the true
+    meshes (also mean, 95th and 99th percentile, maximum, and the share beyond --outlier-mm).
+    When POINTS is a session's points.ply and the session has the filter's surface.ply, the same
+    figures follow for the points the filter kept, with the number it removed. Then the coverage:
+    the share of the true surface in the cloud's bounding box within 5 mm of a point. These are
+    the figures scanrig demo prints and report.html shows.
 
     Example: scanrig evaluate demo_session
     """
+    import math
+
     from scanrig.io.session import session_file
-    from scanrig.reconstruct.evaluate import distance_statistics, load_truth_surface, save_histogram
-    from scanrig.reconstruct.flags import Flag
-    from scanrig.reconstruct.points import read_points
+    from scanrig.reconstruct.evaluate import save_histogram, session_accuracy
 
     points = session_file(points, "points.ply", "scanrig reconstruct")
     truth = truth if truth is not None else points.parent / "truth"
-    cloud, _ = read_points(points)
-    if not include_ambiguous:
-        cloud = cloud.select((cloud.flags & Flag.AMBIGUOUS) == 0)
-    p_world = cloud.p_world
     if rig is not None:
-        from scanrig.io.rig_file import load_rig
-        from scanrig.reconstruct.evaluate import rig_alignment
-
         rig = session_file(rig, "rig.toml", "scanrig calibrate")
-        p_world = rig_alignment(load_rig(rig), load_rig(truth / "rig.toml")).apply(p_world)
-    distance = load_truth_surface(truth)(p_world)
-    stats = distance_statistics(distance, outlier_mm * 1e-3)
+    surface = points.with_name("surface.ply") if points.name == "points.ply" else None
+    accuracy = session_accuracy(points, truth, rig_path=rig, surface_path=surface, outlier_m=outlier_mm * 1e-3)
     histogram = histogram or points.with_name(f"{points.stem}_distances.png")
-    save_histogram(distance, histogram)
-    typer.echo(
-        f"{stats['n_points']} points: RMS {stats['rms_m'] * 1e3:.4f} mm, mean {stats['mean_m'] * 1e3:.4f} mm, "
-        f"p95 {stats['p95_m'] * 1e3:.4f} mm, p99 {stats['p99_m'] * 1e3:.4f} mm, max {stats['max_m'] * 1e3:.4f} mm, "
-        f"{100 * stats['fraction_beyond']:.3f} % beyond {outlier_mm:g} mm; {_sigma_text(cloud.sigma)} -> {histogram}"
-    )
-
-
-def _sigma_text(sigma_m: np.ndarray) -> str:
-    """The cloud's median predicted sigma, or why there is none (surface.ply carries no sigma)."""
-    import numpy as np
-
-    finite = sigma_m[np.isfinite(sigma_m)]
-    return f"median predicted sigma {np.median(finite) * 1e3:.4f} mm" if len(finite) else "no predicted sigma in the file"
+    save_histogram(accuracy.distance_m, histogram)
+    first, *rest = accuracy.lines()
+    sigma = accuracy.median_sigma_m
+    sigma_text = "no predicted sigma in the file" if math.isnan(sigma) else f"median predicted sigma {sigma * 1e3:.4f} mm"
+    typer.echo(f"{first}; {sigma_text} -> {histogram}")
+    for line in rest:
+        typer.echo(line)

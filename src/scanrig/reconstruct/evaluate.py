@@ -1,5 +1,14 @@
 """Distance of reconstructed points to a true surface (simulator ``truth/meshes/*.ply``).
 
+**One definition of accuracy** (``scanrig evaluate``, ``scanrig demo`` and ``report.html`` all
+call :func:`session_accuracy`): the RMS of the distances of *all* points of ``points.ply`` to the
+true surface, in the world frame of ``rig.toml``; after the filter, the same over the points it
+kept (``surface.ply`` inliers, at their denoised positions), with the number it removed. No point
+is set aside before the RMS, and no frame is fitted to the truth: a rig whose world frame is the
+scene's (``[metadata] world_frame = "scene"``, as the demo writes) is compared as it is; another
+calibration's frame is tied to ``truth/rig.toml`` through the camera poses (:func:`rig_alignment`),
+which carries the calibration's pose errors into the figure.
+
 The exact point–triangle distance (Ericson, *Real-Time Collision Detection*, §5.1.5) is evaluated
 only for triangles that can be the nearest: the mesh is first subdivided so that no edge exceeds
 ``max_edge_m``, the nearest centroids (KD-tree) give an upper bound ``d0`` of the distance, and
@@ -25,6 +34,12 @@ FIRST_GUESS_K = 4
 OUTLIER_DISTANCE_M = 1e-3
 #: Points per block of the exact search (bounds memory).
 BLOCK_POINTS = 20000
+#: Coverage: a piece of true surface is covered when a reconstructed point lies within this distance.
+COVERAGE_DISTANCE_M = 0.005
+#: Area-weighted samples of the true surface for the coverage (quadrature error ~ 1 / sqrt(n), 0.3 %).
+COVERAGE_SAMPLES = 100_000
+#: ``[metadata] world_frame`` of a rig.toml whose world frame is already the simulator's scene frame.
+SCENE_WORLD_FRAME = "scene"
 
 
 def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -93,6 +108,17 @@ class SurfaceDistance:
         tri = v[f]
         object.__setattr__(self, "_tri", tri)
         object.__setattr__(self, "_tree", cKDTree(tri.mean(axis=1)))
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``(n, 3)`` points drawn uniformly over the surface's area, metres."""
+        tri = self._tri
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        pick = rng.choice(len(tri), n, p=area / area.sum())
+        u, v = rng.random((2, n))
+        flip = u + v > 1                      # fold the unit square onto the triangle
+        u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+        a, b, c = tri[pick].transpose(1, 0, 2)
+        return a + (b - a) * u[:, None] + (c - a) * v[:, None]
 
     def __call__(self, p_world: np.ndarray) -> np.ndarray:
         """Distances ``(N,)`` (metres) of points ``(N, 3)`` to the surface."""
@@ -219,3 +245,164 @@ def save_histogram(distance_m: np.ndarray, path: str | Path, title: str = "") ->
     fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
     plt.close(fig)
     write_bytes_atomic(path, buf.getvalue())
+
+
+@dataclass(frozen=True)
+class SessionAccuracy:
+    """Accuracy of a session's clouds against the simulator's truth (see the module notes).
+
+    Attributes
+    ----------
+    distance_m : (N,) float array
+        Distance of every point of ``points.ply`` to the true surface, metres.
+    before : dict
+        :func:`distance_statistics` of ``distance_m``.
+    after : dict or None
+        The same for the points the filter kept (None without a matching ``surface.ply``).
+    n_removed : int or None
+        Points the filter removed.
+    n_filter_input : int or None
+        Points the filter was given (``surface.ply`` holds one vertex per input point): all of
+        ``points.ply``, or a random subsample of it when the cloud was too large for its time.
+    coverage : float
+        Fraction of the true surface's area inside the cloud's bounding box that lies within
+        :data:`COVERAGE_DISTANCE_M` of a point (surfaces no camera can see count as uncovered).
+    alignment : str
+        How the cloud's frame was tied to the truth's.
+    median_sigma_m : float
+        Median predicted sigma of the points (NaN when the file carries none), metres.
+    surface_note : str
+        Why ``after`` is None, or "".
+    """
+
+    distance_m: np.ndarray
+    before: dict
+    after: dict | None
+    n_removed: int | None
+    n_filter_input: int | None
+    coverage: float
+    alignment: str
+    median_sigma_m: float
+    surface_note: str = ""
+
+    def lines(self) -> list[str]:
+        """The figures as the lines ``scanrig evaluate`` prints."""
+        b = self.before
+        out = [f"{b['n_points']} points: {_stats_text(b)}"]
+        if self.after is not None:
+            subset = (f" (the filter's input: {self.n_filter_input} of the {b['n_points']} points, drawn at random)"
+                      if self.n_filter_input != b["n_points"] else "")
+            out.append(f"after the filter: {self.after['n_points']} kept, {self.n_removed} removed{subset}: "
+                       f"{_stats_text(self.after)}")
+        elif self.surface_note:
+            out.append(f"after the filter: {self.surface_note}")
+        out.append(f"coverage: {100 * self.coverage:.1f} % of the true surface in the cloud's bounding box "
+                   f"lies within {COVERAGE_DISTANCE_M * 1e3:g} mm of a point")
+        return out
+
+
+def _stats_text(stats: dict) -> str:
+    return (f"RMS {stats['rms_m'] * 1e3:.4f} mm, mean {stats['mean_m'] * 1e3:.4f} mm, "
+            f"p95 {stats['p95_m'] * 1e3:.4f} mm, p99 {stats['p99_m'] * 1e3:.4f} mm, max {stats['max_m'] * 1e3:.4f} mm, "
+            f"{100 * stats['fraction_beyond']:.3f} % beyond {stats['outlier_m'] * 1e3:g} mm")
+
+
+def session_accuracy(points_path: str | Path, truth_dir: str | Path, *, rig_path: str | Path | None = None,
+                     surface_path: str | Path | None = None, outlier_m: float = OUTLIER_DISTANCE_M,
+                     truth: SurfaceDistance | None = None, rng: np.random.Generator | None = None
+                     ) -> SessionAccuracy:
+    """The accuracy of ``points.ply`` (and of the filter's ``surface.ply``) against the truth.
+
+    Parameters
+    ----------
+    points_path : str or Path
+        The cloud: ``points.ply`` or any PLY with ``x, y, z`` in metres. Every point counts.
+    truth_dir : str or Path
+        The simulator's ``truth/`` folder (``meshes/*.ply``, ``rig.toml`` for an alignment).
+    rig_path : str or Path, optional
+        The rig the points were reconstructed with. When its ``[metadata] world_frame`` is
+        :data:`SCENE_WORLD_FRAME` (or it is None) the points are compared as they are; otherwise
+        its world frame is tied to ``truth/rig.toml`` by :func:`rig_alignment`.
+    surface_path : str or Path, optional
+        The filter's ``surface.ply`` of this cloud (one vertex per point it was given, ``inlier`` 0/1).
+    outlier_m : float
+        Distance counted as beyond, metres.
+    truth : SurfaceDistance, optional
+        The true surface, when the caller has it loaded already.
+    rng : numpy.random.Generator, optional
+        Draws the coverage's surface samples (default: seeded with 0, so the figure is repeatable).
+
+    Returns
+    -------
+    SessionAccuracy
+
+    Raises
+    ------
+    FileFormatError
+        No true meshes, an unreadable cloud, or a ``surface.ply`` without ``x, y, z``.
+    """
+    from scanrig.io.ply import read_ply
+    from scanrig.io.rig_file import load_rig, load_rig_info
+    from scanrig.reconstruct.points import read_points
+
+    truth_dir = Path(truth_dir)
+    truth = truth if truth is not None else load_truth_surface(truth_dir)
+    cloud, _ = read_points(points_path)
+    align, alignment = None, "rig.toml's world frame, compared as it is"
+    if rig_path is not None:
+        rig, _, metadata = load_rig_info(rig_path)
+        if metadata.get("world_frame") == SCENE_WORLD_FRAME:
+            alignment = f"{Path(rig_path).name} is in the scene frame (world_frame = {SCENE_WORLD_FRAME!r}): no alignment"
+        else:
+            align = rig_alignment(rig, load_rig(truth_dir / "rig.toml"))
+            alignment = f"{Path(rig_path).name} tied to truth/rig.toml through the camera poses"
+    p_world = cloud.p_world if align is None else align.apply(cloud.p_world)
+    distance = truth(p_world)
+    after = n_removed = n_input = None
+    note = ""
+    if surface_path is not None and Path(surface_path).is_file():
+        # One vertex per point the filter was given, at its denoised position, flagged inlier 0/1.
+        vertices, _, _ = read_ply(surface_path)
+        n_input = len(vertices["x"])
+        keep = vertices["inlier"] != 0 if "inlier" in vertices else np.ones(n_input, bool)
+        kept = np.column_stack([vertices[k][keep].astype(np.float64) for k in ("x", "y", "z")])
+        kept = kept if align is None else align.apply(kept)
+        n_removed = int(n_input - keep.sum())
+        after = distance_statistics(truth(kept), outlier_m) if len(kept) else None
+        note = "" if len(kept) else "the filter kept no point"
+    elif surface_path is not None:
+        note = f"no {Path(surface_path).name}"
+    coverage = surface_coverage(truth, p_world, rng or np.random.default_rng(0))
+    sigma = cloud.sigma[np.isfinite(cloud.sigma)]
+    return SessionAccuracy(distance, distance_statistics(distance, outlier_m), after, n_removed, n_input, coverage,
+                           alignment, float(np.median(sigma)) if len(sigma) else float("nan"), note)
+
+
+def surface_coverage(truth: SurfaceDistance, p_world: np.ndarray, rng: np.random.Generator,
+                     n_samples: int = COVERAGE_SAMPLES, radius_m: float = COVERAGE_DISTANCE_M) -> float:
+    """Fraction of the true surface inside the cloud's bounding box within ``radius_m`` of a point.
+
+    Parameters
+    ----------
+    truth : SurfaceDistance
+    p_world : (N, 3) float array
+        The cloud, metres.
+    rng : numpy.random.Generator
+        Draws the area-weighted surface samples.
+    n_samples : int
+        Samples of the whole true surface.
+    radius_m : float
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 for an empty cloud or a box that holds no sample.
+    """
+    if len(p_world) == 0:
+        return 0.0
+    samples = truth.sample(n_samples, rng)
+    inside = np.all((samples >= p_world.min(axis=0) - radius_m) & (samples <= p_world.max(axis=0) + radius_m), axis=1)
+    if not inside.any():
+        return 0.0
+    d, _ = cKDTree(p_world).query(samples[inside], distance_upper_bound=radius_m)
+    return float(np.mean(np.isfinite(d)))

@@ -15,21 +15,28 @@ CSP = ("default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src
        "connect-src 'none'; form-action 'none'; base-uri 'none'")
 
 _STYLE = """
+* { box-sizing: border-box; }
 body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1500px; padding: 0 24px 48px;
-       color: #222; background: #fafafa; }
-h1 { margin-top: 24px; } h2 { border-bottom: 2px solid #ccc; padding-bottom: 4px; margin-top: 36px; }
-table { border-collapse: collapse; margin: 8px 0 16px; font-size: 14px; }
+       color: #222; background: #fafafa; overflow-wrap: anywhere; }
+h1 { margin: 12px 0 4px; font-size: 24px; } h2 { border-bottom: 2px solid #ccc; padding-bottom: 4px; margin-top: 36px; }
+section#verdict h2 { margin: 4px 0 8px; font-size: 20px; }
+table { border-collapse: collapse; margin: 8px 0 16px; font-size: 14px; display: block; max-width: 100%;
+        overflow-x: auto; }
 th, td { border: 1px solid #ccc; padding: 3px 10px; text-align: right; }
 th { background: #eee; } td.text, th.text { text-align: left; }
 img { max-width: 100%; display: block; margin: 8px 0; }
-pre { background: #f0f0f0; padding: 8px; overflow-x: auto; font-size: 13px; }
+pre { background: #f0f0f0; padding: 8px; white-space: pre-wrap; font-size: 13px; max-width: 100%; }
 .note { color: #666; font-style: italic; }
-.viewer canvas { background: #202020; border: 1px solid #999; }
-.viewer-bar { display: flex; gap: 24px; align-items: center; margin: 6px 0; }
+.first-screen { display: flex; flex-wrap: wrap; gap: 20px; align-items: flex-start; }
+.first-view { flex: 0 1 802px; min-width: 0; } .first-view p { margin: 2px 0; }
+.verdict { flex: 1 1 300px; margin: 0; font-size: 15px; }
+.verdict dt { font-weight: 600; margin-top: 8px; } .verdict dd { margin: 2px 0 0 0; }
+.viewer canvas { background: #202020; border: 1px solid #999; max-width: 100%; }
+.viewer-bar { display: flex; flex-wrap: wrap; gap: 8px 20px; align-items: center; margin: 6px 0; }
 .viewer-bar canvas { background: none; border: none; }
 .hint { color: #666; font-size: 13px; }
 .gallery { display: flex; flex-wrap: wrap; gap: 12px; }
-.gallery figure { margin: 0; } .gallery figcaption { font-size: 13px; color: #444; }
+.gallery figure { margin: 0; max-width: 100%; } .gallery figcaption { font-size: 13px; color: #444; }
 """
 
 

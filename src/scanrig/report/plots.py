@@ -18,6 +18,9 @@ DPI = 90
 HIST_BINS = 60
 #: Hexagonal cells across the sampling-density map.
 DENSITY_CELLS = 45
+#: A distance histogram's axis ends at this percentile of the data times AXIS_MARGIN.
+AXIS_PERCENTILE = 99.9
+AXIS_MARGIN = 1.2
 
 
 def _pyplot():
@@ -53,20 +56,28 @@ def image_uri(rgb: np.ndarray) -> str:
     return data_uri(buf.tobytes())
 
 
-def histogram_figure(values: np.ndarray, xlabel: str, title: str, marker: float | None = None,
-                     marker_label: str = "", log: bool = True) -> str:
-    """A histogram of finite ``values`` (already in display units), with an optional vertical marker."""
+def distance_histogram(distance_mm: np.ndarray, outlier_mm: float) -> str:
+    """Histogram of distances to the truth on an axis fitted to the data (0 to its 99.9th percentile).
+
+    The few points beyond the axis are counted in the title, not stretched over it; the outlier
+    threshold is drawn only when it falls on the axis.
+    """
     plt = _pyplot()
-    values = np.asarray(values, np.float64)
-    values = values[np.isfinite(values)]
+    d = np.asarray(distance_mm, np.float64)
+    d = d[np.isfinite(d)]
+    top = max(float(np.percentile(d, AXIS_PERCENTILE)), 1e-6) * AXIS_MARGIN if d.size else 1.0
+    beyond = int(np.count_nonzero(d > top))
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
-    ax.hist(values, bins=HIST_BINS, log=log, color="tab:blue")
-    if marker is not None:
-        ax.axvline(marker, color="tab:red", ls="--", label=marker_label)
+    ax.hist(np.minimum(d, top), bins=HIST_BINS, range=(0.0, top), log=True, color="tab:blue")
+    if outlier_mm <= top:
+        ax.axvline(outlier_mm, color="tab:red", ls="--", label=f"{outlier_mm:g} mm")
         ax.legend()
-    ax.set_xlabel(xlabel)
+    ax.set_xlim(0.0, top)
+    ax.set_xlabel("distance to the true surface (mm)")
     ax.set_ylabel("points")
-    ax.set_title(title, fontsize=10)
+    rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+    extra = f"; {beyond} beyond the axis (max {d.max():.3g} mm), counted in the last bin" if beyond else ""
+    ax.set_title(f"all {d.size} points, RMS {rms:.4f} mm{extra}", fontsize=9)
     fig.tight_layout()
     return figure_uri(fig)
 

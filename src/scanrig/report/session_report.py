@@ -5,15 +5,20 @@ Each section uses the files that exist and says plainly which are missing:
 ==========================  ======================================================================
 section                     reads
 ==========================  ======================================================================
+verdict (first screen)      what was scanned, points, accuracy against the truth before and after
+                            the filter, coverage, beside the 3-D view of ``mesh.ply`` and
+                            ``points.ply`` coloured by distance to the truth (:mod:`.cloud_sections`)
 summary                     everything below, plus the caller's summary rows (e.g. the demo's)
 calibration                 ``rig.toml``, ``calibration_report/`` (summary, residual, coverage and
                             projection-uncertainty plots written by ``scanrig calibrate``)
 light plane                 ``light_plane.toml``, its summary and residual plots in ``calibration_report/``,
                             ``scan/object_poses.csv`` (only sessions that have one of them)
 detection                   ``traces.parquet`` and ``scan/<camera>/<frame>`` images (overlays)
-point cloud                 ``points.ply``: interactive 3-D view coloured by error/uncertainty
+point cloud                 ``points.ply``: flags
 sampling density            ``points.ply``
-accuracy against truth      ``points.ply``, ``surface.ply`` and ``truth/meshes/*.ply``
+accuracy against truth      ``points.ply``, ``surface.ply``, ``rig.toml`` and ``truth/`` (the
+                            figures of ``scanrig evaluate SESSION``)
+inspection against CAD      ``inspection/inspection.json`` (and a link to ``inspection.html``), when present
 run                         ``session.toml``, file headers, package versions, the report's seed
 ==========================  ======================================================================
 """
@@ -29,19 +34,22 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.io.atomic import write_text_atomic
-from scanrig.io.object_poses import OBJECT_FRAME_NOTE
 from scanrig.io.session import Session
 from scanrig.report import plots
+from scanrig.report.cloud_sections import (
+    cloud_sections,
+    first_screen,
+    inspection_section,
+    load_cloud,
+)
 from scanrig.report.html import Section, page
 from scanrig.report.light_plane_section import light_plane_sections
-from scanrig.report.viewer import MAX_VIEWER_POINTS, subsample, viewer_html
+from scanrig.report.viewer import MAX_VIEWER_POINTS
 
 #: Packages whose versions the report records.
 VERSIONED = ("scanrig", "numpy", "scipy", "opencv-python-headless", "trimesh", "torch", "matplotlib", "pyarrow")
-#: Side of the square crop around a detection in the overlays, pixels.
-OVERLAY_CROP_PX = 240
-#: Fewest points for a sampling-density map (fewer span no area: the map's axes would be degenerate).
-MIN_DENSITY_POINTS = 10
+#: Side of the square crop around a detection in the overlays, pixels of the frame (shown enlarged).
+OVERLAY_CROP_PX = 160
 #: Longest metadata value shown in full.
 METADATA_CHARS = 300
 #: Frames shown as detection overlays.
@@ -51,8 +59,8 @@ Progress = Callable[[str], None]
 
 
 def write_report(session_root: str | Path, out: str | Path | None = None, *, rng: np.random.Generator,
-                 summary: list[tuple[str, str]] | None = None, max_points: int = MAX_VIEWER_POINTS,
-                 progress: Progress | None = None) -> Path:
+                 summary: list[tuple[str, str]] | None = None, subject: str | None = None,
+                 max_points: int = MAX_VIEWER_POINTS, progress: Progress | None = None) -> Path:
     """Write ``report.html`` for a session.
 
     Parameters
@@ -65,6 +73,8 @@ def write_report(session_root: str | Path, out: str | Path | None = None, *, rng
         Draws the viewer's subsample when the cloud has more than ``max_points`` points.
     summary : list of (str, str), optional
         Extra rows for the summary table (e.g. the demo's stage timings).
+    subject : str, optional
+        What was scanned, for the verdict (default: the session's frames, cameras and true objects).
     max_points : int
         Most points shipped to the 3-D viewer.
     progress : callable, optional
@@ -81,13 +91,18 @@ def write_report(session_root: str | Path, out: str | Path | None = None, *, rng
     facts: list[tuple[str, str]] = []
     sections = []
     for name, build in (("calibration", _calibration), ("light plane", light_plane_sections),
-                        ("detection", _detection), ("point cloud", lambda s, f: _cloud(s, f, rng, max_points)),
-                        ("run", _run)):
+                        ("detection", _detection)):
         progress(name)
         sections += build(session, facts)
+    progress("point cloud")
+    data = load_cloud(session)
+    verdict = first_screen(session, data, facts, subject or _subject(session), rng, max_points)
+    sections += cloud_sections(data, facts) + inspection_section(session, facts)
+    progress("run")
+    sections += _run(session, facts)
     summary_section = Section("Summary")
     summary_section.table(["quantity", "value"], [[k, v] for k, v in [*(summary or []), *facts]])
-    html = page(f"scanrig report: {session.root.resolve().name}", [summary_section, *sections])
+    html = page(f"scanrig report: {session.root.resolve().name}", [verdict, summary_section, *sections])
     write_text_atomic(out, html)
     return out
 
@@ -158,7 +173,8 @@ def _detection(session: Session, facts: list) -> list[Section]:
     if (session.root / "scan").is_dir():
         gallery = _overlays(session, table, cams, frames, rank)
         if gallery:
-            sec.text("Detections drawn on the frames (crops): rank-0 candidates green, others orange.")
+            sec.text("Detections outlined on the frames (crops, enlarged): ticks either side of a stripe, a circle "
+                     "around a spot; rank-0 candidates green, others orange.")
             sec.gallery(gallery)
     return [sec]
 
@@ -167,7 +183,7 @@ def _overlays(session: Session, table, cams, frames, rank) -> list[tuple[str, st
     import pyarrow.compute as pc
 
     from scanrig.io.session import read_image
-    from scanrig.laser.overlay import render_overlay
+    from scanrig.report.markers import outlined_crop
 
     first = table.filter(pc.equal(table.column("rank"), 0))
     seen = first.group_by("frame").aggregate([("camera", "count_distinct")]).sort_by(
@@ -182,109 +198,34 @@ def _overlays(session: Session, table, cams, frames, rank) -> list[tuple[str, st
             if path is None or not mask.any():
                 continue
             rows = table.filter(pc.and_(pc.equal(table.column("frame"), frame), pc.equal(table.column("camera"), cam)))
-            rgb = render_overlay(read_image(path), rows)
+            image = read_image(path)
             best = mask & (rank == 0)
             u = np.median(table.column("u").to_numpy()[best if best.any() else mask])
             v = np.median(table.column("v").to_numpy()[best if best.any() else mask])
-            h, w = rgb.shape[:2]
+            h, w = image.shape[:2]
             half = OVERLAY_CROP_PX // 2
             u0 = int(np.clip(round(u) - half, 0, max(w - OVERLAY_CROP_PX, 0)))
             v0 = int(np.clip(round(v) - half, 0, max(h - OVERLAY_CROP_PX, 0)))
-            crop = rgb[v0:v0 + OVERLAY_CROP_PX, u0:u0 + OVERLAY_CROP_PX]
-            items.append((plots.image_uri(crop), f"frame {frame}, {cam} (crop at u={u0}, v={v0}; "
-                                                 f"{int(mask.sum())} candidates)"))
+            crop = outlined_crop(image, rows, u0, v0, OVERLAY_CROP_PX)
+            items.append((plots.image_uri(crop), (f"frame {frame}, {cam} (crop at u={u0}, v={v0}, enlarged; "
+                                                  f"{int(mask.sum())} candidates)")))
     return items
 
 
-# --- point cloud, density, accuracy ---------------------------------------------------------------
-def _cloud(session: Session, facts: list, rng: np.random.Generator, max_points: int) -> list[Section]:
-    from scipy.spatial import cKDTree
-
-    from scanrig.reconstruct.flags import Flag
-    from scanrig.reconstruct.points import read_points
-
-    view, density, accuracy = Section("Point cloud"), Section("Sampling density"), Section("Accuracy against truth")
-    if not session.points_path.is_file():
-        view.note("points.ply not found: nothing reconstructed yet (scanrig reconstruct).")
-        return [view]
-    cloud, comments = read_points(session.points_path)
-    n = len(cloud)
-    facts.append(("points", str(n)))
-    frame = OBJECT_FRAME_NOTE if any(OBJECT_FRAME_NOTE in c for c in comments) else "world frame of rig.toml"
-    if n < 2:
-        view.note(f"points.ply holds {n} point(s): nothing to show.")
-        return [view]
-    flag_rows = [[f.name.lower(), int(np.count_nonzero(cloud.flags & f.value))] for f in Flag]
-    view.table(["flag", "points"], [["(none)", int(np.count_nonzero(cloud.flags == 0))], *flag_rows])
-    # Nearest-neighbour spacing, scaled like scanrig.scan.coverage.local_spacing (sqrt(2) d).
-    d, _ = cKDTree(cloud.p_world).query(cloud.p_world, k=2)
-    spacing_m = np.sqrt(2.0) * d[:, 1]
-    truth = _truth_surface(session)
-    error_m = truth(cloud.p_world) if truth is not None else None
-    fields = []
-    if error_m is not None:
-        fields.append(("distance to true surface", "mm", error_m * 1e3))
-    fields += [("uncertainty (1-sigma, largest axis)", "mm", cloud.sigma * 1e3),
-               ("reprojection residual", "px", cloud.residual_px), ("local spacing", "mm", spacing_m * 1e3),
-               ("views", "cameras", cloud.n_views), ("frame", "index", cloud.frame)]
-    keep = subsample(n, max_points, rng)
-    view.text(f"{len(keep)} of {n} points (metres, {frame}); colour scale from the "
-              "1st to the 99th percentile.")
-    view.raw(viewer_html(cloud.p_world[keep], [(lab, unit, v[keep]) for lab, unit, v in fields]))
-    if n >= MIN_DENSITY_POINTS:
-        density.image(plots.density_figure(cloud.p_world, spacing_m), "sampling density map")
-    else:
-        density.note(f"{n} points are too few for a density map (at least {MIN_DENSITY_POINTS}).")
-    facts.append(("median local spacing", f"{np.median(spacing_m) * 1e3:.3f} mm"))
-    sections = [view, density]
-    if error_m is None:
-        return sections
-    from scanrig.reconstruct.evaluate import OUTLIER_DISTANCE_M, distance_statistics
-
-    stats = distance_statistics(error_m)
-    facts.append(("RMS distance of points.ply to the truth", f"{stats['rms_m'] * 1e3:.4f} mm"))
-    accuracy.image(plots.histogram_figure(error_m * 1e3, "distance to true surface (mm)",
-                                          f"points.ply: {n} points, RMS {stats['rms_m'] * 1e3:.4f} mm",
-                                          OUTLIER_DISTANCE_M * 1e3, "outlier threshold"), "error histogram")
-    rows = [["points.ply", *_stat_row(stats)]]
-    surface_path = session.root / "surface.ply"
-    if surface_path.is_file():
-        surface = surface_inliers(surface_path)
-        if len(surface):
-            s_stats = distance_statistics(truth(surface))
-            rows.append(["surface.ply (inliers)", *_stat_row(s_stats)])
-            facts.append(("RMS distance of surface.ply to the truth", f"{s_stats['rms_m'] * 1e3:.4f} mm"))
-    accuracy.table(["cloud", "points", "RMS (mm)", "mean (mm)", "95 % (mm)", "99 % (mm)", "max (mm)",
-                    f"beyond {OUTLIER_DISTANCE_M * 1e3:g} mm"], rows)
-    return [*sections, accuracy]
+def _subject(session: Session) -> str:
+    """What a session scanned, from its files: the simulator's true objects, frames and cameras."""
+    cameras = session.camera_names("scan") if (session.root / "scan").is_dir() else []
+    meshes = sorted((session.truth_dir / "meshes").glob("*.ply")) if (session.truth_dir / "meshes").is_dir() else []
+    parts = [f"the simulator's {', '.join(p.stem for p in meshes)}"] if meshes else []
+    if cameras:
+        frames = len(session.image_paths("scan", cameras[0]))
+        parts.append(f"{frames} {session.settings().get('laser_mode', 'laser')} frames of {len(cameras)} cameras")
+    return ", ".join(parts) or "this session (no scan images, no truth)"
 
 
 def _short(value, limit: int = METADATA_CHARS) -> str:
     text = str(value)
     return text if len(text) <= limit else text[:limit] + f" ... ({len(text)} characters)"
-
-
-def surface_inliers(path: str | Path) -> np.ndarray:
-    """``(N, 3)`` points of a ``surface.ply`` the filter kept (all of them without an ``inlier`` field), metres."""
-    from scanrig.io.ply import read_ply
-
-    vertices, _, _ = read_ply(path)
-    keep = vertices["inlier"] != 0 if "inlier" in vertices else slice(None)
-    return np.column_stack([vertices[k][keep].astype(np.float64) for k in ("x", "y", "z")])
-
-
-def _stat_row(stats: dict) -> list:
-    return [stats["n_points"], *(stats[k] * 1e3 for k in ("rms_m", "mean_m", "p95_m", "p99_m", "max_m")),
-            f"{stats['fraction_beyond']:.2%}"]
-
-
-def _truth_surface(session: Session):
-    """Distance function ``(N, 3) -> (N,)`` (metres) to the simulator's true meshes, or None without them."""
-    from scanrig.reconstruct.evaluate import load_truth_surface
-
-    if not (session.truth_dir / "meshes").is_dir():
-        return None
-    return load_truth_surface(session.truth_dir)
 
 
 # --- run --------------------------------------------------------------------------------------
