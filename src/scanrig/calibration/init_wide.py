@@ -6,10 +6,11 @@ a fisheye its poses miss the corners by tens of pixels in every view. Here, for 
 1. **Central-projection seed.** The lens is taken as ``rho = f g(theta)`` about the image centre
    (``rho``: pixel distance from it; ``theta``: angle off the optical axis) for each projection
    ``g`` of :data:`PROJECTIONS` (pinhole ``tan``, stereographic, equidistant, equisolid). For each,
-   ``f`` comes from a 1-D search: a candidate ``f`` gives every view's pose by PnP on the lines of
-   sight of its corners, and is scored by the median over views of the views' reprojection RMS
-   (pixels, through the same projection); a geometric grid, then golden-section refinement. The
-   projection and ``f`` with the lowest score win.
+   ``f`` comes from a 1-D search: a candidate ``f`` gives the pose of each of the
+   :data:`SEED_VIEWS` views with the most corners by PnP on the lines of sight of its corners, and
+   is scored by the median over those views of their reprojection RMS (pixels, through the same
+   projection); a geometric grid, then golden-section refinement. The projection and ``f`` with
+   the lowest score win.
 2. **Conversion to the OpenCV model.** ``fx = fy = f``, the principal point at the image centre,
    and the model's radial coefficients fitted by linear least squares so that the model maps
    ``tan theta`` to ``g(theta)`` over the angles at which the corners were seen.
@@ -193,8 +194,9 @@ def _score(lens: CentralLens, views: list[_View]) -> float:
     return float(np.median([_view_fit(lens, v)[1] for v in views]))
 
 
-def fit_central_lens(views: list[_View], width: int, height: int) -> tuple[CentralLens, float]:
-    """Best seed lens over :data:`PROJECTIONS` and focal lengths, and its score (median view RMS, px)."""
+def fit_central_lens(views: list[_View], width: int, height: int) -> tuple[CentralLens | None, float]:
+    """Best seed lens over :data:`PROJECTIONS` and focal lengths, and its score (median view RMS,
+    px); ``(None, inf)`` when no candidate gives a pose to half of the views."""
     c_px = ((width - 1) / 2.0, (height - 1) / 2.0)
     half_diagonal = 0.5 * np.hypot(width, height)
     log_f = np.log(half_diagonal * np.geomspace(*FOCAL_RANGE, FOCAL_GRID))
