@@ -66,8 +66,9 @@ def command(
         except AlignmentError as exc:
             raise InputError(f"{cloud_path}: {exc}") from None
     title = f"scanrig inspect {cloud_path} --cad {cad} --tolerance-mm {tolerance_mm:g} --seed {seed}"
-    write_inspection(inspection, out, points_m=points, title=title)
+    # The page first: drawing it is the step most likely to fail, and then no file is written.
     write_inspection_page(inspection, out, points_m=points, title=title)
+    write_inspection(inspection, out, points_m=points, title=title)
     s = inspection.stats
     typer.echo(f"{s.n_points} points of {cloud_path}: {100 * s.within_tolerance:.1f} % within ±{tolerance_mm:g} mm, "
                f"RMS {1e3 * s.rms_m:.4f} mm, largest {1e3 * s.max_abs_m:.4f} mm; wrote {out}/inspection.ply, "

@@ -30,6 +30,8 @@ from scanrig.errors import InputError
 from scanrig.inspect.closest import CadIndex
 from scanrig.inspect.icp import robust_icp, trimmed_weights
 
+#: The coarse search sees at most this many points of the cloud (a random subsample).
+COARSE_POINTS = 40_000
 #: Voxels across the CAD's bounding-box diagonal for the feature stage.
 VOXELS_ACROSS = 50
 #: FPFH normal and feature radii, in voxels.
@@ -93,6 +95,10 @@ def coarse_alignment(points_m: np.ndarray, index: CadIndex, size_m: float, rng: 
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     voxel_m = size_m / VOXELS_ACROSS
+    # A bounded subsample: the number of voxels that scattered outliers occupy grows with the
+    # cloud (100 000 outliers fill every voxel around a part), the surface's does not.
+    if len(points_m) > COARSE_POINTS:
+        points_m = points_m[rng.choice(len(points_m), COARSE_POINTS, replace=False)]
     check = points_m[rng.choice(len(points_m), min(CHECK_POINTS, len(points_m)), replace=False)]
     sparse = index.sparse(TRIAL_SAMPLES, rng)
     starts = []

@@ -109,8 +109,8 @@ def write_inspection(inspection: Inspection, out_dir: Path, *, points_m: np.ndar
     comments = [f"written by {WRITTEN_BY}: {' '.join(title.split())}", "units m", "frame CAD",
                 ("deviation_m " + ("signed, positive outside the material" if inspection.signed
                                    else "unsigned (open CAD mesh)")),
-                f"colour {COLOUR_MAP} from -{COLOUR_SPAN_TOLERANCES:g} to +{COLOUR_SPAN_TOLERANCES:g} tolerances "
-                f"(tolerance {inspection.stats.tolerance_m:g} m)", f"seed {inspection.seed}"]
+                (f"colour {COLOUR_MAP} from -{COLOUR_SPAN_TOLERANCES:g} to +{COLOUR_SPAN_TOLERANCES:g} tolerances "
+                 f"(tolerance {inspection.stats.tolerance_m:g} m)"), f"seed {inspection.seed}"]
     write_ply(out_dir / PLY_NAME, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2],
                                    "deviation_m": inspection.deviation_m.astype(np.float32),
                                    "red": rgb[:, 0], "green": rgb[:, 1], "blue": rgb[:, 2]}, comments=comments)
