@@ -145,7 +145,12 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
             q_half, G, cols = _projection_jacobian(half, c, ref, p_ref)
             projected.append(q_half)
             modes.append(_sigma_modes(G, unc.covariance[np.ix_(cols, cols)]))
-        out[cam.name] = _judge(projected[1] - projected[0], np.concatenate(modes, axis=1))
+        diff, modes = projected[1] - projected[0], np.concatenate(modes, axis=1)
+        seen = np.all(np.isfinite(diff), axis=1)          # a half may put a point behind the camera
+        if np.count_nonzero(seen) < MIN_COMMON_POINTS:
+            out[cam.name] = None
+            continue
+        out[cam.name] = _judge(diff[seen], modes.reshape(len(diff), 2, -1)[seen].reshape(-1, modes.shape[1]))
     return CrossValidation(out, full.state.cameras[ref].name)
 
 

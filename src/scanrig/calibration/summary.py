@@ -51,7 +51,8 @@ def format_summary(result) -> str:
     cv = result.cross_validation
     lines.append("")
     if cv is None:
-        lines.append("cross-validation (odd/even shots): not run (too few shots per half)")
+        lines.append("cross-validation (odd/even shots): not run (turned off, too few shots per half, or a half "
+                     "that cannot be solved alone)")
     else:
         for name, r in cv.cameras.items():
             lines.append(f"cross-validation {name}: no common area" if r is None else
