@@ -251,7 +251,7 @@ def _projection_jacobian(result: BundleResult, camera: int, ref: int, p_ref: np.
 
 
 def cross_validation_warnings(cv: CrossValidation | None) -> list[str]:
-    """One line per camera whose halves differ more than :data:`RATIO_WARN` times the prediction."""
+    """One line per camera whose ``ratio`` exceeds :data:`RATIO_WARN`."""
     if cv is None:
         return []
     return [f"{name}: the odd and even views differ by {r.ratio:.1f} sigma of their stated uncertainty "
