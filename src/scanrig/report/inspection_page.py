@@ -27,10 +27,12 @@ from scanrig.report.viewer import MAX_VIEWER_POINTS, subsample, viewer_html
 
 #: Points drawn in the static views.
 VIEW_POINTS = 60_000
-#: The histogram's axis spans this percentile of |deviation| (and at least the colour span).
-HIST_PERCENTILE = 99.9
-#: The static views: (title, horizontal axis, vertical axis, depth axis towards the viewer).
-VIEWS = (("top (looking down -z)", 0, 1, 2), ("front (looking along +y)", 0, 2, -2), ("side (looking along -x)", 1, 2, 1))
+#: The histogram's axis spans this many tolerances either side of 0.
+HIST_SPAN_TOLERANCES = 4.0
+#: The static views: (title, horizontal axis, vertical axis, depth axis, +1 when the viewer looks
+#: from its positive side).
+VIEWS = (("top (looking along -z)", 0, 1, 2, 1), ("front (looking along +y)", 0, 2, 1, -1),
+         ("side (looking along -x)", 1, 2, 0, 1))
 
 
 def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rng: np.random.Generator) -> str:
@@ -111,8 +113,8 @@ def _views_uri(p_cad_m: np.ndarray, dev_mm: np.ndarray, tol_mm: float, rng: np.r
     p, d = 1e3 * p_cad_m[keep], dev_mm[keep]
     span = COLOUR_SPAN_TOLERANCES * tol_mm
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
-    for ax, (name, h, v, depth) in zip(axes, VIEWS):
-        order = np.argsort(np.sign(depth) * p[:, abs(depth)])          # far points first, near on top
+    for ax, (name, h, v, depth, side) in zip(axes, VIEWS):
+        order = np.argsort(side * p[:, depth])                         # far points first, near on top
         art = ax.scatter(p[order, h], p[order, v], c=d[order], s=1.0, cmap=COLOUR_MAP, vmin=-span, vmax=span,
                          rasterized=True, linewidths=0)
         ax.set_aspect("equal")
@@ -124,18 +126,21 @@ def _views_uri(p_cad_m: np.ndarray, dev_mm: np.ndarray, tol_mm: float, rng: np.r
 
 
 def _histogram_uri(dev_mm: np.ndarray, tol_mm: float, signed: bool) -> str:
-    """Histogram of the deviations (mm) with the tolerance band; the axis spans the 99.9 % central
-    deviations and at least twice the tolerance (beyond: counted in the end bins)."""
+    """Histogram of the deviations (mm) over ±:data:`HIST_SPAN_TOLERANCES` tolerances, the
+    tolerance band dashed; deviations beyond are counted in the end bins (and in the title)."""
     plt = plots._pyplot()
-    top = max(float(np.percentile(np.abs(dev_mm), HIST_PERCENTILE)), COLOUR_SPAN_TOLERANCES * tol_mm)
+    top = HIST_SPAN_TOLERANCES * tol_mm
     lo = -top if signed else 0.0
+    beyond = int(np.count_nonzero((dev_mm > top) | (dev_mm < lo)))
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
     ax.hist(np.clip(dev_mm, lo, top), bins=plots.HIST_BINS, range=(lo, top), log=True, color="tab:blue")
     for x in ((-tol_mm, tol_mm) if signed else (tol_mm,)):
         ax.axvline(x, color="tab:red", ls="--")
+    ax.set_xlim(lo, top)
     ax.set_xlabel("deviation (mm)" + ("; positive outside the material" if signed else ", unsigned"))
     ax.set_ylabel("points")
-    ax.set_title(f"{len(dev_mm)} points; dashed: tolerance ±{tol_mm:.3g} mm", fontsize=9)
+    ax.set_title(f"{len(dev_mm)} points; dashed: tolerance ±{tol_mm:.3g} mm; {beyond} beyond the axis, "
+                 "counted in the end bins", fontsize=9)
     fig.tight_layout()
     return plots.figure_uri(fig)
 
