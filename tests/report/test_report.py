@@ -137,3 +137,12 @@ def test_cli_report(session, tmp_path, capsys):
 def test_missing_session_raises(tmp_path):
     with pytest.raises(FileFormatError, match="nowhere: session folder not found"):
         write_report(tmp_path / "nowhere", rng=np.random.default_rng(6))
+
+
+def test_histogram_axis_is_fitted_to_the_data():
+    """A 0.05 mm distribution with one 1 mm outlier gets an axis near 0.06 mm, not 1 mm."""
+    from scanrig.report.plots import AXIS_MARGIN, fitted_top
+
+    d_mm = np.r_[np.linspace(0.0, 0.05, 2000), 1.0]
+    assert fitted_top(d_mm) == pytest.approx(np.percentile(d_mm, 99.9) * AXIS_MARGIN)
+    assert fitted_top(d_mm) < 0.1

@@ -56,6 +56,11 @@ def image_uri(rgb: np.ndarray) -> str:
     return data_uri(buf.tobytes())
 
 
+def fitted_top(values: np.ndarray) -> float:
+    """End of a histogram axis fitted to non-negative ``values``: their AXIS_PERCENTILE times AXIS_MARGIN."""
+    return max(float(np.percentile(values, AXIS_PERCENTILE)), 1e-6) * AXIS_MARGIN if len(values) else 1.0
+
+
 def distance_histogram(distance_mm: np.ndarray, outlier_mm: float) -> str:
     """Histogram of distances to the truth on an axis fitted to the data (0 to its 99.9th percentile).
 
@@ -65,7 +70,7 @@ def distance_histogram(distance_mm: np.ndarray, outlier_mm: float) -> str:
     plt = _pyplot()
     d = np.asarray(distance_mm, np.float64)
     d = d[np.isfinite(d)]
-    top = max(float(np.percentile(d, AXIS_PERCENTILE)), 1e-6) * AXIS_MARGIN if d.size else 1.0
+    top = fitted_top(d)
     beyond = int(np.count_nonzero(d > top))
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     ax.hist(np.minimum(d, top), bins=HIST_BINS, range=(0.0, top), log=True, color="tab:blue")
@@ -114,9 +119,14 @@ def density_figure(p_world: np.ndarray, spacing_m: np.ndarray) -> str:
     ax0.set_xlabel("first principal axis (mm)")
     ax0.set_ylabel("second principal axis (mm)")
     ax0.set_title("sampling density (projected on the cloud's main plane)", fontsize=10)
-    ax1.hist(spacing_m * 1e3, bins=HIST_BINS, color="tab:green")
+    spacing_mm = spacing_m * 1e3
+    top = fitted_top(spacing_mm)
+    beyond = int(np.count_nonzero(spacing_mm > top))
+    ax1.hist(np.minimum(spacing_mm, top), bins=HIST_BINS, range=(0.0, top), color="tab:green")
+    ax1.set_xlim(0.0, top)
     ax1.set_xlabel("local spacing (mm)")
     ax1.set_ylabel("points")
-    ax1.set_title(f"median {np.median(spacing_m) * 1e3:.3f} mm", fontsize=10)
+    extra = f"; {beyond} beyond the axis, in the last bin" if beyond else ""
+    ax1.set_title(f"median {np.median(spacing_m) * 1e3:.3f} mm{extra}", fontsize=10)
     fig.tight_layout()
     return figure_uri(fig)
