@@ -145,4 +145,6 @@ def test_session_folder_uses_the_points_the_filter_kept(part, tmp_path, capsys):
     assert main(["inspect", str(session), "--cad", str(tmp_path / "bracket.ply"), "--out", str(out), "--no-align"]) == 0
     assert f"{int(inlier.sum())} points of {session / 'surface.ply'}" in capsys.readouterr().out
     summary = json.loads((out / "inspection.json").read_text())
-    assert summary["n_points"] == int(inlier.sum()) and summary["alignment"]["method"] == "none"
+    assert summary["n_points"] == int(inlier.sum())
+    assert summary["alignment"] == {"method": "none", "residual_rms_m": None, "inlier_fraction": None, "iterations": 0}
+    json.loads((out / "inspection.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))

@@ -40,9 +40,10 @@ class Alignment:
         ``features`` (FPFH + RANSAC), ``multistart``, ``initial`` (the given transform) then
         ``+ robust ICP``; or ``none`` (``align=False``).
     residual_rms_m : float
-        Weighted RMS of the final point-to-plane residuals of the points the fit kept, metres.
+        Weighted RMS of the final point-to-plane residuals of the points the fit kept, metres
+        (NaN for ``none``).
     inlier_fraction : float
-        Fraction of the ICP points with non-zero weight (the overlap with the CAD).
+        Fraction of the ICP points with non-zero weight (NaN for ``none``).
     iterations : int
         Fine ICP iterations.
     """
@@ -53,8 +54,11 @@ class Alignment:
     iterations: int
 
     def as_dict(self) -> dict:
-        return {"method": self.method, "residual_rms_m": self.residual_rms_m,
-                "inlier_fraction": self.inlier_fraction, "iterations": self.iterations}
+        """JSON-ready: the residual and fraction are ``None`` when there was no fit (``none``)."""
+        def number(x: float) -> float | None:
+            return x if np.isfinite(x) else None
+        return {"method": self.method, "residual_rms_m": number(self.residual_rms_m),
+                "inlier_fraction": number(self.inlier_fraction), "iterations": self.iterations}
 
 
 @dataclass(frozen=True)
@@ -124,9 +128,10 @@ def inspect_cloud(points_m: np.ndarray, cad: trimesh.Trimesh, *, tolerance_m: fl
     Raises
     ------
     ShapeError
-        ``points_m`` is not ``(N, 3)`` finite, or the initial transform is not rigid.
+        ``points_m`` is not ``(N, 3)``, or the initial transform is not a finite rigid 4x4.
     InputError
-        Empty cloud, tolerance not > 0, or a CAD ~1000x larger or smaller than the cloud.
+        Empty cloud, non-finite points, tolerance not > 0, or a CAD ~1000x larger or smaller
+        than the cloud.
     AlignmentError
         ``align`` and the best fit brings less than :data:`MIN_OVERLAP` of the points within
         ``OVERLAP_FRACTION`` (0.2 %) of the part's size from the surface.
