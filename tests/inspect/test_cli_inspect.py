@@ -148,3 +148,16 @@ def test_session_folder_uses_the_points_the_filter_kept(part, tmp_path, capsys):
     assert summary["n_points"] == int(inlier.sum())
     assert summary["alignment"] == {"method": "none", "residual_rms_m": None, "inlier_fraction": None, "iterations": 0}
     json.loads((out / "inspection.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
+
+
+def test_initial_transform_from_a_text_file(part, tmp_path, capsys):
+    folder, scan = part
+    initial = tmp_path / "initial.txt"
+    np.savetxt(initial, scan.cad_from_cloud)
+    out = tmp_path / "out"
+    assert main(["inspect", str(folder / "scan.ply"), "--cad", str(folder / "bracket_mm.stl"), "--cad-units", "mm",
+                 "--out", str(out), "--initial", str(initial)]) == 0
+    summary = json.loads((out / "inspection.json").read_text())
+    assert summary["alignment"]["method"] == "initial + robust ICP"
+    vertices, _, _ = read_ply(out / "inspection.ply")
+    assert synth.deviation_error_m(scan, vertices["deviation_m"].astype(float)) <= DEVIATION_TOL
