@@ -44,6 +44,7 @@ def test_acceptance_on_a_partial_scan_with_outliers(mesh, seed):
         nearest = np.argmin(np.linalg.norm(centroids - np.array(centre_mm) * 1e-3, axis=1))
         assert np.linalg.norm(centroids[nearest] - np.array(centre_mm) * 1e-3) < 1e-3
         assert np.sign(result.regions[nearest].mean_m) == np.sign(height_mm)
+        assert result.regions[nearest].facing == "+z"             # both lie on the top face
 
 
 @pytest.mark.slow

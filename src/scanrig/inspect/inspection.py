@@ -168,7 +168,7 @@ def inspect_cloud(points_m: np.ndarray, cad: trimesh.Trimesh, *, tolerance_m: fl
     for a in (cad_from_cloud, deviation):
         a.setflags(write=False)
     return Inspection(cad_from_cloud, deviation, signed, deviation_stats(deviation, tolerance_m), alignment,
-                      worst_regions(points_cad, deviation, tolerance_m, rng), tuple(warnings), seed)
+                      worst_regions(points_cad, deviation, tolerance_m, index, rng), tuple(warnings), seed)
 
 
 def _align(points_m, index, start, size_m, coarse: bool, rng) -> tuple[Alignment, np.ndarray]:

@@ -9,7 +9,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from scanrig.inspect.closest import query_workers
+from scanrig.inspect.closest import CadIndex, query_workers
 
 #: Out-of-tolerance points closer than this many cloud spacings belong to one region.
 LINK_SPACINGS = 3.0
@@ -17,6 +17,8 @@ LINK_SPACINGS = 3.0
 MIN_REGION_POINTS = 5
 #: Regions reported, worst (largest |peak|) first.
 MAX_REGIONS = 10
+#: A normal component at least this large names its axis in :attr:`Region.facing` (cos 60 deg).
+FACING_COMPONENT = 0.5
 #: Points used to estimate the cloud's spacing.
 SPACING_SAMPLE = 200_000
 
@@ -37,6 +39,8 @@ class Region:
         Points in the region.
     radius_m : float
         Largest distance of a region point from the centroid, metres.
+    normal : (3,) float array
+        Outward normal of the CAD surface nearest the centroid (which side of the part it is on).
     """
 
     centroid_m: np.ndarray
@@ -44,10 +48,18 @@ class Region:
     mean_m: float
     n_points: int
     radius_m: float
+    normal: np.ndarray
+
+    @property
+    def facing(self) -> str:
+        """The side of the part in words: the CAD axes the normal leans along, e.g. ``+z`` or ``+x -y``."""
+        return " ".join(f"{'+' if c > 0 else '-'}{'xyz'[k]}" for k, c in enumerate(self.normal)
+                        if abs(c) >= FACING_COMPONENT)
 
     def as_dict(self) -> dict:
         return {"centroid_m": self.centroid_m.tolist(), "peak_m": self.peak_m, "mean_m": self.mean_m,
-                "n_points": self.n_points, "radius_m": self.radius_m}
+                "n_points": self.n_points, "radius_m": self.radius_m, "normal": self.normal.tolist(),
+                "facing": self.facing}
 
 
 def cloud_spacing_m(points_m: np.ndarray, rng: np.random.Generator) -> float:
@@ -59,7 +71,7 @@ def cloud_spacing_m(points_m: np.ndarray, rng: np.random.Generator) -> float:
 
 
 def worst_regions(points_cad_m: np.ndarray, deviation_m: np.ndarray, tolerance_m: float,
-                  rng: np.random.Generator) -> tuple[Region, ...]:
+                  index: CadIndex, rng: np.random.Generator) -> tuple[Region, ...]:
     """Cluster the points with ``|deviation| > tolerance_m`` and return the worst regions.
 
     Parameters
@@ -70,6 +82,8 @@ def worst_regions(points_cad_m: np.ndarray, deviation_m: np.ndarray, tolerance_m
         Their signed deviations, metres.
     tolerance_m : float
         The tolerance, metres.
+    index : CadIndex
+        The CAD surface (gives each region's side).
     rng : numpy.random.Generator
         Draws the spacing subsample.
 
@@ -96,4 +110,6 @@ def worst_regions(points_cad_m: np.ndarray, deviation_m: np.ndarray, tolerance_m
     np.maximum.at(radius, label, np.linalg.norm(p - centroid[label], axis=1))
     keep = np.flatnonzero(count >= MIN_REGION_POINTS)
     keep = keep[np.argsort(-np.abs(peak[keep]), kind="stable")][:MAX_REGIONS]
-    return tuple(Region(centroid[k], float(peak[k]), float(mean[k]), int(count[k]), float(radius[k])) for k in keep)
+    normal = index.face_normals[index.closest(centroid[keep]).face] if len(keep) else np.zeros((0, 3))
+    return tuple(Region(centroid[k], float(peak[k]), float(mean[k]), int(count[k]), float(radius[k]), n)
+                 for k, n in zip(keep, normal))

@@ -83,11 +83,13 @@ def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rn
 
     regions = Section("Worst regions")
     if inspection.regions:
-        regions.table(["#", "kind", "centre x (mm)", "centre y (mm)", "centre z (mm)", "peak (mm)", "mean (mm)",
-                       "radius (mm)", "points"],
-                      [[i + 1, "bump" if r.peak_m > 0 else "dent", *(1e3 * r.centroid_m).tolist(), 1e3 * r.peak_m,
-                        1e3 * r.mean_m, 1e3 * r.radius_m, r.n_points] for i, r in enumerate(inspection.regions)])
-        regions.note("Out-of-tolerance points joined by proximity; centre in the CAD frame; worst peak first.")
+        regions.table(["#", "kind", "side", "centre x (mm)", "centre y (mm)", "centre z (mm)", "peak (mm)",
+                       "mean (mm)", "radius (mm)", "points"],
+                      [[i + 1, _kind(r.mean_m, inspection.signed), r.facing or "-", *(1e3 * r.centroid_m).tolist(),
+                        1e3 * r.peak_m, 1e3 * r.mean_m, 1e3 * r.radius_m, r.n_points]
+                       for i, r in enumerate(inspection.regions)])
+        regions.note("Out-of-tolerance points joined by proximity, worst peak first; centre in the CAD frame; "
+                     "side: the CAD axes the surface there faces (+z: a face looking up +z).")
     else:
         regions.text("No region of out-of-tolerance points.")
 
@@ -96,6 +98,12 @@ def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rn
     align.pre("cad_from_cloud (metres):\n" + "\n".join(" ".join(f"{v: .9f}" for v in row)
                                                        for row in inspection.cad_from_cloud))
     return page(title, [verdict, view, hist, table, regions, align])
+
+
+def _kind(mean_m: float, signed: bool) -> str:
+    if not signed:
+        return "off the surface"
+    return "bump (material added)" if mean_m > 0 else "dent (material missing)"
 
 
 def _alignment_line(inspection: Inspection) -> str:
