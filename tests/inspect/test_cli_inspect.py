@@ -146,7 +146,8 @@ def test_session_folder_uses_the_points_the_filter_kept(part, tmp_path, capsys):
     assert f"{int(inlier.sum())} points of {session / 'surface.ply'}" in capsys.readouterr().out
     summary = json.loads((out / "inspection.json").read_text())
     assert summary["n_points"] == int(inlier.sum())
-    assert summary["alignment"] == {"method": "none", "residual_rms_m": None, "inlier_fraction": None, "iterations": 0}
+    assert summary["alignment"] == {"method": "none", "residual_rms_m": None, "inlier_fraction": None, "iterations": 0,
+                                    "constraint": None}
     json.loads((out / "inspection.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
 
 

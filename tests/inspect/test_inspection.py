@@ -5,6 +5,7 @@ import pytest
 
 from scanrig.errors import InputError
 from scanrig.inspect import AlignmentError, coarse, inspect_cloud
+from scanrig.inspect.inspection import MIN_CONSTRAINT
 
 from . import synth
 
@@ -37,6 +38,7 @@ def test_acceptance_on_a_partial_scan_with_outliers(mesh, seed):
     result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M, seed=seed)
     _check_accuracy(scan, result)
     assert result.signed and result.warnings == ()
+    assert result.alignment.constraint > MIN_CONSTRAINT
     assert result.stats.n_points == 40_000
     # the 0.5 mm bump and the 0.3 mm dent are found as regions at their places (within 1 mm), with their signs
     centroids = np.array([r.centroid_m for r in result.regions])
@@ -70,6 +72,18 @@ def test_initial_transform_replaces_the_coarse_search(mesh):
     result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M, initial_cad_from_cloud=nudge @ scan.cad_from_cloud)
     assert result.alignment.method == "initial + robust ICP"
     _check_accuracy(scan, result)
+
+
+def test_a_single_face_leaves_the_fit_free_and_says_so(mesh):
+    # the top face only: sliding in its plane and turning about its normal change nothing
+    rng = np.random.default_rng(12)
+    top = np.column_stack([rng.uniform(0.002, 0.018, 4000), rng.uniform(0.002, 0.018, 4000),
+                           0.02 + rng.normal(scale=synth.NOISE_M, size=4000)])
+    result = inspect_cloud(top, mesh, tolerance_m=TOLERANCE_M, initial_cad_from_cloud=np.eye(4))
+    assert result.alignment.constraint < MIN_CONSTRAINT
+    assert result.warnings == (("the scanned surface leaves a motion free (e.g. a single plane, or a surface of "
+                                "revolution): cad_from_cloud is not determined along it; the deviations are"),)
+    assert synth.NOISE_M / 2 < result.stats.rms_m < 2 * synth.NOISE_M      # still the noise, whatever the slide
 
 
 def test_no_align_measures_in_the_given_frame(mesh):

@@ -54,6 +54,9 @@ class IcpResult:
         Final weights in [0, 1].
     iterations : int
         Iterations run.
+    constraint : float
+        Smallest over largest eigenvalue of the last step's normal matrix, rotations scaled by
+        ``size_m``: near 0 when the kept points leave a motion free (a single plane, a cylinder).
     """
 
     cad_from_cloud: np.ndarray
@@ -61,6 +64,7 @@ class IcpResult:
     inlier_fraction: float
     weights: np.ndarray
     iterations: int
+    constraint: float
 
 
 def tukey_weights(residual_m: np.ndarray, floor_m: float = 0.0) -> np.ndarray:
@@ -121,7 +125,7 @@ def robust_icp(points_m: np.ndarray, index: CadIndex, cad_from_cloud: np.ndarray
             return tukey_weights(r, floor_m=1e-7 * size_m)
     R, t = cad_from_cloud[:3, :3].copy(), cad_from_cloud[:3, 3].copy()
     bound_m = np.inf
-    iterations = 0
+    iterations, a = 0, np.eye(6)
     for iterations in range(1, max_iterations + 1):
         p = points_m @ R.T + t
         r, w, normal = _weighted_residuals(p, index, weight_fn, bound_m)
@@ -143,7 +147,10 @@ def robust_icp(points_m: np.ndarray, index: CadIndex, cad_from_cloud: np.ndarray
     rms = float(np.sqrt(np.sum(w[kept] * r[kept] ** 2) / np.sum(w[kept]))) if kept.any() else float("inf")
     matrix = np.eye(4)
     matrix[:3, :3], matrix[:3, 3] = R, t
-    return IcpResult(matrix, rms, float(np.mean(w > 0)), w, iterations)
+    scale = np.r_[np.full(3, 1.0 / size_m), np.ones(3)]
+    eig = np.linalg.eigvalsh(a * np.outer(scale, scale))
+    constraint = float(eig[0] / eig[-1]) if eig[-1] > 0 else 0.0
+    return IcpResult(matrix, rms, float(np.mean(w > 0)), w, iterations, constraint)
 
 
 def _weighted_residuals(p, index, weight_fn, bound_m):

@@ -26,6 +26,11 @@ MIN_ALIGN_POINTS = 20
 MIN_OVERLAP = 0.5
 
 
+#: Below this ``constraint`` the fit leaves a motion free (a plane or a cylinder: ~0; a bracket
+#: seen from one side: 0.02; a faceted cylinder with its end faces: 1e-4).
+MIN_CONSTRAINT = 1e-3
+
+
 class AlignmentError(InputError):
     """The cloud cannot be aligned to the CAD model (not this part, or too little of it)."""
 
@@ -46,19 +51,24 @@ class Alignment:
         Fraction of the ICP points with non-zero weight (NaN for ``none``).
     iterations : int
         Fine ICP iterations.
+    constraint : float
+        How well the kept points fix all six motions (see ``IcpResult.constraint``; NaN for
+        ``none``); below :data:`MIN_CONSTRAINT` a motion is left free and a warning says so.
     """
 
     method: str
     residual_rms_m: float
     inlier_fraction: float
     iterations: int
+    constraint: float
 
     def as_dict(self) -> dict:
         """JSON-ready: the residual and fraction are ``None`` when there was no fit (``none``)."""
         def number(x: float) -> float | None:
             return x if np.isfinite(x) else None
         return {"method": self.method, "residual_rms_m": number(self.residual_rms_m),
-                "inlier_fraction": number(self.inlier_fraction), "iterations": self.iterations}
+                "inlier_fraction": number(self.inlier_fraction), "iterations": self.iterations,
+                "constraint": number(self.constraint)}
 
 
 @dataclass(frozen=True)
@@ -153,7 +163,10 @@ def inspect_cloud(points_m: np.ndarray, cad: trimesh.Trimesh, *, tolerance_m: fl
     if align:
         alignment, cad_from_cloud = _align(points_m, index, start, size_m, initial_cad_from_cloud is None, rng)
     else:
-        alignment, cad_from_cloud = Alignment("none", float("nan"), float("nan"), 0), start
+        alignment, cad_from_cloud = Alignment("none", float("nan"), float("nan"), 0, float("nan")), start
+    if alignment.constraint < MIN_CONSTRAINT:
+        warnings.append("the scanned surface leaves a motion free (e.g. a single plane, or a surface of revolution): "
+                        "cad_from_cloud is not determined along it; the deviations are")
     signed = is_closed(cad)
     if not signed:
         warnings.append("the CAD mesh is not closed (not watertight or inconsistently wound): deviations are "
@@ -185,7 +198,9 @@ def _align(points_m, index, start, size_m, coarse: bool, rng) -> tuple[Alignment
         points_m[rng.choice(len(points_m), ICP_MAX_POINTS, replace=False)]
     fit = robust_icp(sample, index, start, size_m=size_m)
     _gate(overlap(sample, index, fit.cad_from_cloud, size_m), size_m)
-    return Alignment(f"{method} + robust ICP", fit.residual_rms_m, fit.inlier_fraction, fit.iterations), fit.cad_from_cloud
+    alignment = Alignment(f"{method} + robust ICP", fit.residual_rms_m, fit.inlier_fraction, fit.iterations,
+                          fit.constraint)
+    return alignment, fit.cad_from_cloud
 
 
 def _gate(fraction: float, size_m: float) -> None:
