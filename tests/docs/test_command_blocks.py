@@ -6,8 +6,9 @@ out (docs/contributing.md) are each reported as a skipped test with the page, li
 
 - ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
   red spot laser, 4 cube poses, 20 frames) copied into the page's folder.
-- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by that small
-  session already calibrated, detected and reconstructed at ``./FOLDER``.
+- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by a small
+  session like the demo's (a red stripe sweep of 8 frames, 8 cube poses), calibrated, detected and
+  reconstructed, at ``./FOLDER``.
 - Rules: installing (``python3 -m venv``, ``. .venv/bin/activate``, ``pip install``) is left out
   (the test runs in the installed environment), and so is ``python -m pytest`` (this test is part
   of that run).
@@ -33,8 +34,10 @@ RULES = {
 }
 #: The small simulated session that stands in for a real rig's (``SESSION``).
 SMALL_SESSION = ["scanrig", "simulate", "{out}", "--frames", "20", "--shots", "4", "--seed", "1"]
-#: What turns it into a processed session (a stand-in for the demo's).
-PROCESS = [["scanrig", "calibrate", "{out}"], ["scanrig", "detect", "{out}"], ["scanrig", "reconstruct", "{out}"]]
+#: The stand-in for a slow block's session, like the demo's: a stripe sweep, calibrated as the demo
+#: calibrates (8 poses of the cube), detected and reconstructed.
+STAND_IN = [["scanrig", "simulate", "{out}", "--mode", "stripe", "--frames", "8", "--shots", "8", "--seed", "1"],
+            ["scanrig", "calibrate", "{out}"], ["scanrig", "detect", "{out}"], ["scanrig", "reconstruct", "{out}"]]
 #: Seconds one block may take (the slowest, a calibration, takes about 20 s on an idle machine).
 BLOCK_TIMEOUT_S = 600
 
@@ -112,7 +115,7 @@ class Sessions:
 
     def __init__(self, root: Path):
         self.root = root
-        self._raw = self._processed = None
+        self._raw = self._stand_in = None
 
     def raw(self) -> Path:
         if self._raw is None:
@@ -120,13 +123,12 @@ class Sessions:
             _run(" ".join(SMALL_SESSION).format(out=self._raw), self.root, "the small session")
         return self._raw
 
-    def processed(self) -> Path:
-        if self._processed is None:
-            self._processed = self.root / "processed"
-            shutil.copytree(self.raw(), self._processed)
-            for command in PROCESS:
-                _run(" ".join(command).format(out=self._processed), self.root, "the processed small session")
-        return self._processed
+    def stand_in(self) -> Path:
+        if self._stand_in is None:
+            self._stand_in = self.root / "stand-in"
+            for command in STAND_IN:
+                _run(" ".join(command).format(out=self._stand_in), self.root, "the stand-in session")
+        return self._stand_in
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +143,7 @@ def run_page(page: Path, sessions: Sessions, workdir: Path) -> None:
         shutil.copytree(sessions.raw(), workdir / "SESSION")
     for block, script, stand_in in to_run:
         if stand_in is not None:
-            shutil.copytree(sessions.processed(), workdir / stand_in)
+            shutil.copytree(sessions.stand_in(), workdir / stand_in)
         elif script:
             _run(script, workdir, block.where)
 
