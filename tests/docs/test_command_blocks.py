@@ -38,7 +38,7 @@ SMALL_SESSION = ["scanrig", "simulate", "{out}", "--frames", "20", "--shots", "4
 #: calibrates (8 poses of the cube), detected and reconstructed.
 STAND_IN = [["scanrig", "simulate", "{out}", "--mode", "stripe", "--frames", "8", "--shots", "8", "--seed", "1"],
             ["scanrig", "calibrate", "{out}"], ["scanrig", "detect", "{out}"], ["scanrig", "reconstruct", "{out}"]]
-#: Seconds one block may take (the slowest, the tutorial's calibrate and process blocks, took 1-2 min at
+#: Seconds one block may take (the whole real-rig tutorial, its small session included, took 165 s at
 #: load average 20 on 2 cores).
 BLOCK_TIMEOUT_S = 600
 
