@@ -8,10 +8,11 @@ Prints, per seed, at 40 000 points: the alignment error (RMS distance between th
 mapped by the true and the estimated transform), the deviation error (RMS of measured minus
 designed deviation) over the noise sigma, the worst bump-height error, and the time of
 ``inspect_cloud`` (wall clock, and CPU time of all threads: on a shared machine the CPU time is
-the figure that does not depend on the other users' load); then the time of ``inspect_cloud`` + ``write_inspection`` + the HTML page for
-1 000 000 points. For context, in the same run: Open3D's plain point-to-plane ICP from the identity
-(what a fit without coarse alignment or robust weights gives) on the same 40 000 points against
-250 000 CAD samples, its alignment error and time.
+the figure that does not depend on the other users' load); then the time of ``inspect_cloud``,
+``write_inspection`` and the HTML page for 1 000 000 points. For context, in the same run:
+Open3D's plain point-to-plane ICP from the identity (what a fit without coarse alignment or
+robust weights gives) on the same 40 000 points against 250 000 CAD samples, its alignment error
+and time.
 
 Run: python benchmarks/bench_inspect.py [n_seeds] [--no-million]
 """

@@ -109,7 +109,8 @@ def scan_of(mesh: trimesh.Trimesh, rng: np.random.Generator, n_points: int, *, p
 def alignment_error_m(scan: Scan, cad_from_cloud: np.ndarray) -> float:
     """RMS distance between the surface points mapped by the true and the estimated transform, metres."""
     p = scan.points_m[~scan.outlier]
-    diff = p @ (cad_from_cloud[:3, :3] - scan.cad_from_cloud[:3, :3]).T + (cad_from_cloud[:3, 3] - scan.cad_from_cloud[:3, 3])
+    d_rotation = cad_from_cloud[:3, :3] - scan.cad_from_cloud[:3, :3]
+    diff = p @ d_rotation.T + (cad_from_cloud[:3, 3] - scan.cad_from_cloud[:3, 3])
     return float(np.sqrt(np.mean(np.sum(diff ** 2, axis=1))))
 
 

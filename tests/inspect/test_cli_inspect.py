@@ -53,8 +53,9 @@ def test_inspect_writes_ply_json_and_html(part, tmp_path, capsys):
     assert synth.deviation_error_m(scan, vertices["deviation_m"].astype(float)) <= DEVIATION_TOL
     html = (out / "inspection.html").read_text()
     assert "Worst regions" in html and "<script" in html and "http://" not in html.split("</head>")[1]
-    # a second run replaces its own files
-    assert main(args) == 0
+    # a second run replaces its own files (without aligning again: quicker, and it still writes all three)
+    assert main([*args, "--no-align"]) == 0
+    assert json.loads((out / "inspection.json").read_text())["alignment"]["method"] == "none"
 
 
 def test_foreign_files_are_never_overwritten(part, tmp_path, capsys):
@@ -83,11 +84,13 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(part, tmp_path, caps
     cad = ["--cad", str(folder / "bracket_mm.stl"), "--out", str(out)]
     empty = tmp_path / "empty.ply"
     _write_cloud(empty, np.zeros((0, 3)))
-    assert _error([str(empty), *cad, "--cad-units", "mm"], capsys) == f"error: {empty}: the cloud is empty (no vertices)"
+    assert _error([str(empty), *cad, "--cad-units", "mm"], capsys) == (
+        f"error: {empty}: the cloud is empty (no vertices)")
 
     assert _error([str(folder / "scan.ply"), *cad], capsys).startswith(
         f"error: {folder / 'bracket_mm.stl'}: the CAD is ")
-    assert "looks like millimetres read as metres; give --cad-units mm" in _error([str(folder / "scan.ply"), *cad], capsys)
+    line = _error([str(folder / "scan.ply"), *cad], capsys)
+    assert line.endswith("looks like millimetres read as metres; give --cad-units mm")
 
     garbage = tmp_path / "garbage.stl"
     garbage.write_bytes(b"\x00\x01 not a mesh")

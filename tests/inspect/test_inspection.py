@@ -69,7 +69,8 @@ def test_multistart_fallback_without_open3d(mesh, monkeypatch):
 def test_initial_transform_replaces_the_coarse_search(mesh):
     scan = synth.scan_of(mesh, np.random.default_rng(4), 20_000)
     nudge = synth.random_motion(np.random.default_rng(5), max_angle_deg=2.0, max_shift_m=0.002)
-    result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M, initial_cad_from_cloud=nudge @ scan.cad_from_cloud)
+    result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M,
+                           initial_cad_from_cloud=nudge @ scan.cad_from_cloud)
     assert result.alignment.method == "initial + robust ICP"
     _check_accuracy(scan, result)
 
@@ -146,7 +147,7 @@ def test_a_cloud_of_another_shape_cannot_be_aligned(mesh):
     rng = np.random.default_rng(11)
     d = rng.normal(size=(5000, 3))
     sphere = 0.03 * d / np.linalg.norm(d, axis=1, keepdims=True)
-    with pytest.raises(AlignmentError, match=r"^the cloud cannot be aligned to the CAD model: the best fit brings \d+ % "
-                                             r"of the points within 0.15 mm of the surface \(need 50 %\); "
-                                             r"is it a scan of this part\? give an initial transform to help$"):
+    message = (r"^the cloud cannot be aligned to the CAD model: the best fit brings \d+ % of the points within "
+               r"0.15 mm of the surface \(need 50 %\); is it a scan of this part\? give an initial transform to help$")
+    with pytest.raises(AlignmentError, match=message):
         inspect_cloud(sphere, mesh, tolerance_m=TOLERANCE_M, seed=11)

@@ -1,6 +1,6 @@
 """Global coarse alignment of a scan to its CAD model, with no hand placing.
 
-Two methods, tried in this order:
+Two methods give candidates:
 
 ``features``
     Open3D's FPFH descriptors on voxel-downsampled copies of the cloud and of the CAD surface,
@@ -9,10 +9,11 @@ Two methods, tried in this order:
     extra (``pip install "scanrig[open3d]"``), so it is used only when importable.
 ``multistart``
     Our own, for installations without Open3D and for parts whose features RANSAC cannot match
-    (planar faces give FPFH little to tell apart): trimmed point-to-plane ICP on a few hundred points from many starting rotations (the
-    24 ways of matching the principal axes of cloud and CAD, plus random rotations), the cloud's
-    median moved onto the CAD's centre; the start whose closest 60 % of points lie nearest the
-    surface wins. Trimming, not a robust scale, lets a partial scan slide over the part.
+    (planar faces give FPFH little to tell apart): trimmed point-to-plane ICP on a few hundred
+    points from many starting rotations (the identity, the 24 ways of matching the principal
+    axes of cloud and CAD, random rotations), the cloud's median moved onto the CAD's centre;
+    the starts whose closest 60 % of points lie nearest the surface go on. Trimming, not a
+    robust scale, lets a partial scan slide over the part.
 
 Every candidate (the feature match and the best multi-start trials) is refined by trimmed, then
 robust, ICP on a few thousand points, and the one that brings the most points close to the surface

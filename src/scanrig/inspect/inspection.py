@@ -176,8 +176,9 @@ def inspect_cloud(points_m: np.ndarray, cad: trimesh.Trimesh, *, tolerance_m: fl
     if not align:
         near = float(np.mean(np.abs(deviation) < OVERLAP_FRACTION * size_m))
         if near < MIN_OVERLAP:
-            warnings.append(f"only {100 * near:.0f} % of the points lie within {1e3 * OVERLAP_FRACTION * size_m:.3g} mm "
-                            "of the CAD surface without alignment: is the cloud in the CAD frame?")
+            warnings.append(f"only {100 * near:.0f} % of the points lie within "
+                            f"{1e3 * OVERLAP_FRACTION * size_m:.3g} mm of the CAD surface without alignment: "
+                            "is the cloud in the CAD frame?")
     for a in (cad_from_cloud, deviation):
         a.setflags(write=False)
     return Inspection(cad_from_cloud, deviation, signed, deviation_stats(deviation, tolerance_m), alignment,

@@ -67,18 +67,22 @@ def inspection_html(inspection: Inspection, points_m: np.ndarray, title: str, rn
     view.image(_views_uri(p, dev_mm, tol_mm, rng), "deviation seen from three sides")
     view.note(f"Colour: {COLOUR_MAP}, from -{COLOUR_SPAN_TOLERANCES * tol_mm:.3g} mm (blue, inside) to "
               f"+{COLOUR_SPAN_TOLERANCES * tol_mm:.3g} mm (red, outside); white is on the surface. Below, the "
-              "interactive view (its colour range is the 1st-99th percentile of the field).")
+              "interactive view: its colours run over the 1st-99th percentile of the field shown, so the "
+              "first field is clipped at the same ±2 tolerances (outliers would otherwise stretch the scale).")
     keep = subsample(len(p), MAX_VIEWER_POINTS, rng)
-    view.raw(viewer_html(p[keep], [("deviation", "mm", dev_mm[keep]),
-                                   ("|deviation| / tolerance", "", np.abs(dev_mm[keep]) / tol_mm)], "inspection"))
+    span_mm = COLOUR_SPAN_TOLERANCES * tol_mm
+    fields = [(f"deviation, clipped at ±{span_mm:.3g} mm", "mm", np.clip(dev_mm[keep], -span_mm, span_mm)),
+              ("deviation", "mm", dev_mm[keep]), ("|deviation| / tolerance", "", np.abs(dev_mm[keep]) / tol_mm)]
+    view.raw(viewer_html(p[keep], fields, "inspection"))
 
     hist = Section("Histogram")
     hist.image(_histogram_uri(dev_mm, tol_mm, inspection.signed), "histogram of the deviations")
 
     table = Section("Statistics")
     table.table(["quantity", "value"], [
-        ["points", stats.n_points], ["RMS deviation (mm)", 1e3 * stats.rms_m], ["mean deviation (mm)", 1e3 * stats.mean_m],
-        ["95th percentile of |deviation| (mm)", 1e3 * stats.p95_abs_m], ["largest |deviation| (mm)", 1e3 * stats.max_abs_m],
+        ["points", stats.n_points], ["RMS deviation (mm)", 1e3 * stats.rms_m],
+        ["mean deviation (mm)", 1e3 * stats.mean_m], ["95th percentile of |deviation| (mm)", 1e3 * stats.p95_abs_m],
+        ["largest |deviation| (mm)", 1e3 * stats.max_abs_m],
         ["tolerance (mm)", tol_mm], ["within tolerance (%)", 100 * stats.within_tolerance]])
 
     regions = Section("Worst regions")
