@@ -150,7 +150,9 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
         if np.count_nonzero(seen) < MIN_COMMON_POINTS:
             out[cam.name] = None
             continue
-        out[cam.name] = _judge(diff[seen], modes.reshape(len(diff), 2, -1)[seen].reshape(-1, modes.shape[1]))
+        k = modes.shape[1]  # 0 when nothing about this camera is free
+        seen_modes = modes.reshape(len(diff), 2, k)[seen].reshape(2 * np.count_nonzero(seen), k)
+        out[cam.name] = _judge(diff[seen], seen_modes)
     return CrossValidation(out, full.state.cameras[ref].name)
 
 
@@ -164,7 +166,7 @@ def _sigma_modes(G: np.ndarray, cov: np.ndarray) -> np.ndarray:
     cov : ndarray of shape (k, k)
     """
     evals, evecs = np.linalg.eigh(cov)
-    return G.reshape(-1, G.shape[2]) @ (evecs * np.sqrt(np.maximum(evals, 0.0)))
+    return G.reshape(len(G) * 2, G.shape[2]) @ (evecs * np.sqrt(np.maximum(evals, 0.0)))
 
 
 def _judge(diff_px: np.ndarray, modes: np.ndarray) -> CameraCrossValidation:
@@ -214,7 +216,8 @@ def _projection_jacobian(result: BundleResult, camera: int, ref: int, p_ref: np.
     The point goes to the world with this solution's reference pose, ``p_world = R_refᵀ (p_ref -
     t_ref)``, and is projected by ``camera``. Its derivatives with respect to the reference pose
     are ``[p_world]× M`` (rotation vector; ``d(R p)/dr = -R [p]× M``) and ``-R_refᵀ`` (translation);
-    when ``camera`` is the reference they cancel those of its own pose, as they must.
+    when ``camera`` is the reference they cancel those of its own pose exactly, so both are left
+    out (summed, they would leave round-off that the whitened ratio would read as data).
 
     Returns
     -------
@@ -234,7 +237,7 @@ def _projection_jacobian(result: BundleResult, camera: int, ref: int, p_ref: np.
     cols = list(index[free])
     blocks = [J_intr[:, :, free]]
     pose_cols = {}
-    for c, J in ((camera, J_pose), (ref, None)):
+    for c, J in ((camera, J_pose), (ref, None)) if camera != ref else ():
         if layout.camera_pose[c] is None:
             continue
         if J is None:

@@ -55,10 +55,15 @@ def format_summary(result) -> str:
                      "that cannot be solved alone)")
     else:
         for name, r in cv.cameras.items():
-            lines.append(f"cross-validation {name}: no common area" if r is None else
-                         f"cross-validation {name}: odd/even halves differ by RMS {r.measured_px:.3f} px "
-                         f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
-                         f"(ratio {r.ratio:.2f} over {r.dof} directions)")
+            if r is None:
+                lines.append(f"cross-validation {name}: no common area")
+            elif r.dof == 0:
+                lines.append(f"cross-validation {name}: nothing to compare (its intrinsics are held fixed and "
+                             f"its pose defines the frame)")
+            else:
+                lines.append(f"cross-validation {name}: odd/even halves differ by RMS {r.measured_px:.3f} px "
+                             f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
+                             f"(ratio {r.ratio:.2f} over {r.dof} directions)")
         if any(r is not None and r.ratio > RATIO_WARN for r in cv.cameras.values()):
             lines.append(f"a ratio above {RATIO_WARN:g} means the stated uncertainty is too small. Likely causes:")
             lines += [f"  - {cause}" for cause in CAUSES]
