@@ -15,7 +15,7 @@ import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
 from scanrig.calibration.cross_validation import CrossValidation, compare_halves, cross_validation_warnings
-from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
+from scanrig.calibration.init import MAD_TO_SIGMA, MIN_POINTS_PER_PLANE, Initialisation, initialise
 from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_constraints, undetermined_intrinsics,
                                                   with_known_intrinsics)
 from scanrig.calibration.observations import Observations
@@ -37,8 +37,6 @@ REPORT_DIR = "calibration_report"
 LOCATE_OUTLIER_SIGMAS = 5.0
 LOCATE_MIN_GATE_PX = 0.05
 LOCATE_ROUNDS = 4
-#: Median absolute deviation -> standard deviation for Gaussian errors.
-MAD_TO_SIGMA = 1.4826
 
 
 @dataclass
