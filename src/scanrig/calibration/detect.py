@@ -16,7 +16,8 @@
   masked out, geometry from the board's homography). OpenCV's own ChArUco corners are good on
   faces seen head-on (0.04 px RMS on rendered cube sessions) but err by 0.3-0.5 px RMS on faces
   seen at 65-90 degrees, where its window reaches markers and neighbouring corners; refined,
-  0.01 px and 0.015-0.05 px.
+  0.01 px and 0.015-0.05 px. A corner whose fit fails (mostly on faces seen nearly edge-on,
+  where OpenCV's corner can be pixels off) is left out.
 - Circle grids: ``cv2.findCirclesGrid`` (symmetric or asymmetric).
 
 Every detection has weight 1 (the common pixel noise is estimated by the bundle adjustment).
@@ -65,8 +66,7 @@ def to_grey8(image: np.ndarray) -> np.ndarray:
         return img
     img = img.astype(np.float64)
     top = img.max() if img.max() > 0 else 1.0
-    if top <= 255.0:
-        top = 255.0
+    top = max(255.0, top)
     return np.clip(np.round(img * (255.0 / top)), 0, 255).astype(np.uint8)
 
 
@@ -180,12 +180,16 @@ def _detect_charuco(grey: np.ndarray, boards, refine: bool = True) -> Detection:
         if ch_ids is None or len(ch_ids) == 0:
             continue
         uv = ch_corners.reshape(-1, 2).astype(np.float64)
+        local = ch_ids.ravel()
         if refine:
             from scanrig.calibration.corners import refine_charuco_corners
 
-            uv, _ = refine_charuco_corners(grey, uv, board.points_board[ch_ids.ravel(), :2], board.square_m,
-                                           board.marker_m, board.margin_m)
-        ids.append(board.point_ids[ch_ids.ravel()])
+            uv, ok = refine_charuco_corners(grey, uv, board.points_board[local, :2], board.square_m,
+                                            board.marker_m, board.margin_m)
+            # OpenCV's position of a corner the fit cannot refine is off by up to a few pixels
+            # (a face seen edge-on): leave the corner out.
+            uv, local = uv[ok], local[ok]
+        ids.append(board.point_ids[local])
         uvs.append(uv)
     if not ids:
         return Detection.empty("charuco")

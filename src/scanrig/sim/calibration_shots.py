@@ -29,9 +29,9 @@ PAPER_ALBEDO = 0.85
 INK_ALBEDO = 0.04
 #: Fraction of the full well reached by white paper under the scene's room light.
 PAPER_FILL = 0.7
-#: Sub-pixel samples per axis at edges in calibration shots (corner accuracy): with 8 the
-#: rendered ChArUco corners lie within 0.007-0.009 px RMS of their true projections (4: 0.016 px,
-#: above the pixel noise's 0.007 px).
+#: Sub-pixel samples per axis at edges in calibration shots (corner accuracy): with 8, noise-free
+#: rendered ChArUco corners lie within 0.005 px RMS of their true projections (with 4, 0.016 px:
+#: more than the 0.007 px that the pixel noise gives them).
 CALIBRATION_SUPERSAMPLING = 8
 #: ``random_pose(cover_field=True)``: range of the target's distance from the camera, as
 #: fractions of the camera's distance to the scene's ``center_m``.

@@ -25,9 +25,17 @@ from functools import cached_property
 import numpy as np
 
 from scanrig.geometry import Camera
-from scanrig.sim.colour import ColourNoise, channel_electrons, colour_frame, demosaic, expose_rgb, stored
+from scanrig.sim.colour import (
+    ColourNoise,
+    channel_electrons,
+    colour_frame,
+    demosaic,
+    expose_rgb,
+    stored,
+)
 from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
 from scanrig.sim.materials import specular_lobe
+from scanrig.sim.pixel_integration import edge_sample_offsets, integrate_pixels
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.sensor import NoiseField, Sensor
 
@@ -102,21 +110,23 @@ class CameraView:
         radiance, obj = self._radiance_blocks(len(xy), lambda a, b: table.to_world(xy[a:b]))
         radiance = radiance.reshape(cam.height, cam.width)
         obj = obj.reshape(cam.height, cam.width)
-        s = self.sensor.supersampling
-        if s > 1:
-            edge = _edges(radiance, obj)
-            idx = np.flatnonzero(edge)
-            if idx.size:
-                centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
-                # blocks of whole pixels (s² samples each), their samples made block by block
-                per = max(1, _BLOCK // (s * s))
+        s, sigma_px = self.sensor.supersampling, self.sensor.psf_sigma_px
+        idx = np.flatnonzero(_edges(radiance, obj)) if s > 1 else np.zeros(0, dtype=np.int64)
+        centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
+        # blocks of whole pixels (s² samples each), their samples made block by block
+        per = max(1, _BLOCK // (s * s))
 
-                def sub_rays(a, b):
-                    return table.rays(_subpixel_samples(centres[a // (s * s):b // (s * s)], s))[1]
+        def sub_rays(a, b):
+            c = centres[a // (s * s):b // (s * s)]
+            return table.rays((c[:, None, :] + edge_sample_offsets(c, s)).reshape(-1, 2))[1]
 
-                sub = self._radiance_blocks(idx.size * s * s, sub_rays, block=per * s * s)[0]
-                radiance.ravel()[idx] = sub.reshape(idx.size, s * s).mean(axis=1)
-        return self.sensor.blur(radiance * self.sensor.e_per_radiance)
+        sub = self._radiance_blocks(idx.size * s * s, sub_rays, block=per * s * s)[0]
+        e_per_radiance = self.sensor.e_per_radiance
+        if sigma_px == 0:
+            radiance.ravel()[idx] = sub.reshape(idx.size, s * s).mean(axis=1)
+            return (radiance * e_per_radiance).astype(np.float32)
+        # The PSF acts on the optical image before the pixels integrate it (pixel_integration).
+        return integrate_pixels(radiance * e_per_radiance, idx, sub * e_per_radiance, s, sigma_px)
 
     @cached_property
     def noise(self) -> NoiseField | ColourNoise:

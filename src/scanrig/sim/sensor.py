@@ -121,15 +121,6 @@ class Sensor:
         return (np.asarray(signal_e) + self.read_noise_e**2) / self.gain_e_per_dn**2 + 1.0 / 12.0
 
     # --- image formation ----------------------------------------------------------------------
-    def blur(self, image_e: np.ndarray) -> np.ndarray:
-        """Apply the lens PSF (Gaussian) to an electron image (float32, same shape)."""
-        if self.psf_sigma_px == 0:
-            return image_e.astype(np.float32)
-        import cv2
-
-        return cv2.GaussianBlur(image_e.astype(np.float32), (0, 0), self.psf_sigma_px,
-                                borderType=cv2.BORDER_REPLICATE)
-
     def expose(self, signal_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Exact noise: Poisson shot noise, Gaussian read noise, full well, gain, rounding, clipping.
 

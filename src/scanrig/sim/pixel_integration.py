@@ -1,0 +1,124 @@
+"""Pixel values of a rendered optical image: the lens blur acts first, then each pixel integrates.
+
+A pixel ``j`` of a real sensor records ``∫ I(x) K(x - j) dx`` with ``K = box ⊛ G``: the optical
+image ``I`` blurred by the lens PSF ``G`` (Gaussian, σ in pixels), integrated over the pixel's
+unit square. The renderer knows ``I`` by one ray per pixel where the scene is uniform across the
+pixel and by ``s²`` rays (:func:`edge_sample_offsets`) in pixels an edge crosses. Then exactly:
+
+- a uniform pixel ``k`` adds ``I_k · W(k - j)`` to pixel ``j``, ``W = box ⊛ box ⊛ G`` (separable);
+- a sample at ``x`` of an edge pixel adds ``I(x) K(x - j) / s²``.
+
+Averaging each edge pixel's samples first and blurring the pixel grid afterwards (with ``G``
+sampled at whole pixels) is not the same: the pixel values are then piecewise linear in the
+position of an edge, and a blurred-edge fit locates an edge along a pixel axis wrong by up to
+±0.022 px (σ = 0.6 px), depending on its sub-pixel phase; here the error is below 0.001 px.
+
+Sample positions are stratified, not a regular grid: a regular ``s × s`` grid measures an edge
+parallel to a pixel axis only in steps of ``1 / s`` px, the same step all along the edge, which
+moves every corner fitted to a board seen square-on by up to ``1 / (2 s)`` px.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import ndtr
+
+#: Irrational steps (the R2 low-discrepancy sequence's) that give each pixel its own sample shift.
+R2_STEPS = np.array([0.7548776662466927, 0.5698402909980532])
+#: Pixels per block of edge pixels whose contributions are gathered at once.
+_BLOCK = 2048
+
+
+def edge_sample_offsets(centres: np.ndarray, s: int) -> np.ndarray:
+    """``s²`` sample offsets per pixel, from the pixel centre, for a pixel that an edge crosses.
+
+    The samples are stratified along each axis into ``s²`` strips (n-rooks, and one sample in
+    each of the ``s × s`` cells), the pattern shifted cyclically within the pixel by an amount of
+    its own for every pixel (from the R2 sequence at the pixel's index). With ``s²`` strips an
+    edge along a pixel axis is measured in steps of ``1 / s²`` px; the shifts make each pixel's
+    remaining error random and zero on average, so it averages out along an edge.
+
+    Parameters
+    ----------
+    centres : ndarray of shape (N, 2)
+        Pixel centres (u, v), whole pixels.
+    s : int
+        Samples per axis.
+
+    Returns
+    -------
+    ndarray of shape (N, s², 2)
+        Offsets in [-0.5, 0.5)², pixels.
+    """
+    i, j = np.divmod(np.arange(s * s), s)
+    base = np.column_stack([i + (j + 0.5) / s, j + (i + 0.5) / s]) / s
+    index = centres[:, 1] * 65536.0 + centres[:, 0]
+    shift = np.mod(index[:, None] * R2_STEPS[None, :], 1.0)
+    return np.mod(base[None] + shift[:, None, :], 1.0) - 0.5
+
+
+def reach_px(sigma_px: float) -> int:
+    """Pixels beyond its own that a pixel's light reaches through the PSF (3 σ, and half a pixel)."""
+    return int(np.ceil(3.0 * sigma_px + 1.0))
+
+
+def _box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
+    """``(box ⊛ G)(d)``: the PSF integrated over a unit interval centred ``d`` away."""
+    return ndtr((d + 0.5) / sigma_px) - ndtr((d - 0.5) / sigma_px)
+
+
+def _box_box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
+    """``(box ⊛ box ⊛ G)(d)``, in closed form: second difference of ``∫∫ G``."""
+    def ramp(x):
+        z = x / sigma_px
+        return x * ndtr(z) + sigma_px * np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+
+    return ramp(d + 1.0) - 2.0 * ramp(d) + ramp(d - 1.0)
+
+
+def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: np.ndarray, s: int,
+                     sigma_px: float) -> np.ndarray:
+    """Pixel values of the optical image blurred by the PSF, then integrated by each pixel.
+
+    Parameters
+    ----------
+    radiance : ndarray of shape (H, W)
+        Radiance at each pixel centre (taken as uniform over the pixel unless it is an edge pixel).
+    edge_idx : ndarray of shape (n,), int
+        Flat indices of the edge pixels.
+    edge_radiance : ndarray of shape (n s²,)
+        Radiance at their samples, :func:`edge_sample_offsets` order, pixel by pixel.
+    s : int
+        Samples per axis of an edge pixel.
+    sigma_px : float
+        Gaussian PSF, 1-σ in pixels (> 0).
+
+    Returns
+    -------
+    ndarray of shape (H, W), float32
+        In the units of ``radiance``. Beyond the image the scene repeats its border pixels.
+    """
+    import cv2
+
+    h, w = radiance.shape
+    reach = reach_px(sigma_px)
+    taps = np.arange(-reach, reach + 1, dtype=np.float64)
+    uniform = radiance.astype(np.float32)
+    uniform.ravel()[edge_idx] = 0.0
+    kernel = _box_box_gauss(taps, sigma_px).astype(np.float32)
+    out = cv2.sepFilter2D(uniform, -1, kernel, kernel, borderType=cv2.BORDER_REPLICATE).astype(np.float64)
+    edge_radiance = edge_radiance.reshape(len(edge_idx), s * s)
+    for a in range(0, len(edge_idx), _BLOCK):
+        idx = edge_idx[a:a + _BLOCK]
+        v, u = np.divmod(idx, w)
+        offsets = edge_sample_offsets(np.column_stack([u, v]).astype(np.float64), s)     # (n, s², 2)
+        # K(x - j) for the (2 reach + 1)² pixels j around each edge pixel, separable in x and y.
+        kx = _box_gauss(offsets[:, :, 0, None] - taps, sigma_px)                        # (n, s², T)
+        ky = _box_gauss(offsets[:, :, 1, None] - taps, sigma_px)
+        patch = np.matmul((ky * edge_radiance[a:a + _BLOCK, :, None]).transpose(0, 2, 1), kx) / (s * s)
+        ty, tx = np.meshgrid(taps.astype(np.int64), taps.astype(np.int64), indexing="ij")
+        row = v[:, None, None] + ty[None]
+        col = u[:, None, None] + tx[None]
+        inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+        out.ravel()[:] += np.bincount((row * w + col)[inside], weights=patch[inside], minlength=h * w)
+    return out.astype(np.float32)
