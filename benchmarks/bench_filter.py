@@ -15,7 +15,10 @@ reference notes section 3) and is scored against the analytic truth:
 Then the sampling-need map on a simulated scan whose density falls towards grazing incidence and
 which has a hole: average precision of each criterion against the truly under-sampled nodes
 (piecewise-linear interpolation of the true surface at the sample sites off by more than the
-tolerance, or no sample around), and the time to filter 100 000 points (full run only).
+tolerance, or no sample around); the sparse capsules (1,000-2,000 points, 5-15 mm apart, radius
+30-100 mm, 10-20 % outliers 20-250 sigma off: good points kept, outliers rejected, medians over
+``--sparse-seeds``) and the spot demo's cloud (good points flagged); and the time to filter
+100 000 points (full run only). ``--sparse-only`` runs the sparse part alone.
 
 Run ``python benchmarks/bench_filter.py`` (several minutes) or with ``--quick``.
 """
@@ -227,6 +230,91 @@ def step_width(result, n_side):
     return width / (2.0 / (n_side - 1))
 
 
+#: Sparse cells: (points, capsule radius m, mean spacing m, outlier fraction). The noise is
+#: SPARSE_SIGMA along the normal; outliers lie 20-250 noise sigmas off, either side.
+SPARSE_CELLS = ((1500, 0.06, 0.008, 0.10), (1000, 0.03, 0.005, 0.20), (2000, 0.10, 0.015, 0.20),
+                (2000, 0.05, 0.010, 0.20), (1000, 0.03, 0.015, 0.10))
+SPARSE_SIGMA = 20e-6
+
+
+def capsule(n, radius, spacing, eps, rng):
+    """``n`` points drawn uniformly over a capsule along x (a cylinder of ``radius`` with
+    hemispherical caps) of area ``n * spacing**2`` (at least the caps), with normal noise
+    ``SPARSE_SIGMA`` and a fraction ``eps`` of outliers 20-250 sigma off, either side.
+
+    Returns points (n, 3), outlier mask (n,), signed normal offset from the truth (n,), and the
+    distance function of the true surface.
+    """
+    length = max(0.0, (n * spacing**2 - 4 * np.pi * radius**2) / (2 * np.pi * radius))
+    on_cylinder = rng.random(n) < length / (length + 2 * radius)  # areas 2 pi R L : 4 pi R^2
+    direction = rng.normal(size=(n, 3))
+    direction[on_cylinder, 0] = 0.0
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    centre = np.zeros((n, 3))
+    centre[:, 0] = np.where(on_cylinder, rng.uniform(-length / 2, length / 2, n),
+                            np.sign(direction[:, 0]) * length / 2)
+    offset = rng.normal(0, SPARSE_SIGMA, n)
+    bad = np.zeros(n, bool)
+    bad[rng.choice(n, int(round(eps * n)), replace=False)] = True
+    offset[bad] = rng.choice([-1.0, 1.0], bad.sum()) * rng.uniform(20, 250, bad.sum()) * SPARSE_SIGMA
+
+    def distance(p):
+        axial = np.clip(p[:, 0], -length / 2, length / 2)
+        return np.linalg.norm(p - np.column_stack([axial, np.zeros((len(p), 2))]), axis=1) - radius
+
+    return centre + direction * (radius + offset)[:, None], bad, offset, distance
+
+
+def sparse_benchmark(seeds):
+    """Good points kept and outliers rejected on the sparse capsules (medians over ``seeds``),
+    and the RMS error of the denoised positions of the kept points and of all points."""
+    print(f"\nsparse capsules: noise {SPARSE_SIGMA * 1e6:.0f} um, outliers 20-250 sigma; seeds {list(seeds)}")
+    print(f"{'points':>6s} {'R mm':>5s} {'s mm':>5s} {'eps':>4s} {'kept':>6s} {'rej.':>6s} {'worst':>13s} "
+          f"{'E kept':>7s} {'E all':>7s} {'removed':>7s} {'s':>6s}")
+    for n, radius, spacing, eps in SPARSE_CELLS:
+        rows = []
+        for seed in seeds:
+            points, bad, _, distance = capsule(n, radius, spacing, eps, np.random.default_rng([seed, 3]))
+            t0 = time.perf_counter()
+            res = filter_points(points, rng=np.random.default_rng(seed))
+            secs = time.perf_counter() - t0
+            err = distance(res.denoised) / SPARSE_SIGMA
+            rows.append((res.inlier[~bad].mean(), (~res.inlier[bad]).mean(),
+                         np.sqrt(np.mean(err[res.inlier] ** 2)), np.sqrt(np.mean(err ** 2)),
+                         int((~res.inlier).sum()), secs))
+        rows = np.array(rows)
+        med = np.median(rows, axis=0)
+        print(f"{n:6d} {radius * 1e3:5.0f} {spacing * 1e3:5.0f} {eps:4.2f} {med[0]:6.3f} {med[1]:6.3f} "
+              f"{rows[:, 0].min():6.3f}/{rows[:, 1].min():6.3f} {med[2]:7.2f} {med[3]:7.1f} {med[4]:7.0f} "
+              f"{med[5]:6.1f}", flush=True)
+    print("kept: good points kept; rej.: outliers rejected; worst: lowest of each over the seeds; "
+          "E kept / E all: RMS normal error of the denoised kept / all points, in noise sigmas")
+
+
+def spot_benchmark(seeds):
+    """The spot demo's cloud (tests/surface/data/demo_spot_points.ply) against the default scene:
+    points flagged, and those of them whose true error is below 3 of their own sigmas."""
+    from pathlib import Path
+
+    import trimesh
+
+    from scanrig.io.ply import read_points_with_sigma
+    from scanrig.reconstruct.evaluate import SurfaceDistance
+    from scanrig.sim import load_scene
+
+    path = Path(__file__).resolve().parents[1] / "tests" / "surface" / "data" / "demo_spot_points.ply"
+    points, sigma = read_points_with_sigma(path)
+    mesh = trimesh.util.concatenate([o.mesh for o in load_scene("default").objects])
+    error = SurfaceDistance(mesh.vertices, mesh.faces)(points)
+    good = error < 3 * sigma
+    print(f"\nspot demo cloud: {len(points)} points, {good.sum()} within 3 sigma of the truth "
+          f"(true error {np.sqrt(np.mean(error ** 2)) * 1e3:.4f} mm RMS)")
+    for seed in seeds:
+        res = filter_points(points, rng=np.random.default_rng(seed), point_sigma=sigma)
+        print(f"  seed {seed}: {int((~res.inlier).sum())} flagged, {int((~res.inlier & good).sum())} of them "
+              f"within 3 sigma of the truth; {int(res.summary()['n_sparse'])} judged as sparse")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one outlier fraction, small grids")
@@ -234,10 +322,17 @@ def main():
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--timing-only", action="store_true",
                         help="only the 100 000-point timing, in a fresh process")
+    parser.add_argument("--sparse-only", action="store_true",
+                        help="only the sparse capsules and the spot demo's cloud, over --sparse-seeds")
+    parser.add_argument("--sparse-seeds", type=int, nargs="+", default=[0, 1, 2])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     if args.timing_only:
         timing(np.random.default_rng([args.seed, 1]), args.seed)
+        return
+    if args.sparse_only:
+        sparse_benchmark(args.sparse_seeds)
+        spot_benchmark(args.sparse_seeds)
         return
     n_side = 32 if args.quick else 64
     fractions = (0.2,) if args.quick else (0.0, 0.1, 0.2, 0.4)
@@ -279,6 +374,8 @@ def main():
                 print(f"{cell:11s} {eps:4.2f} {q:4.2f} {method:14s} {e / SIGMA:8.3f} {e / e_oracle:8.3f} "
                       f"{floor} {recall} {frr} {w} {secs:6.1f}", flush=True)
     need_benchmark(np.random.default_rng([args.seed, 2]), args.seed)  # its data apart from the cells
+    sparse_benchmark(args.sparse_seeds)
+    spot_benchmark(args.sparse_seeds)
     if not args.quick:
         timing(np.random.default_rng([args.seed, 1]), args.seed)
 

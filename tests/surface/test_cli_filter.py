@@ -1,7 +1,10 @@
 """``scanrig filter`` end to end on a small PLY."""
 
+import json
+
 import numpy as np
 import plyfile
+import pytest
 
 from scanrig.cli.main import main
 from scanrig.io.ply import read_ply, write_ply
@@ -9,7 +12,7 @@ from scanrig.io.ply import read_ply, write_ply
 from .conftest import tilted_plane_with_outliers
 
 
-def test_filter_writes_surface_and_mesh_beside_the_input(tmp_path):
+def test_filter_writes_surface_and_mesh_beside_the_input(tmp_path, capsys):
     points, _, bad, _ = tilted_plane_with_outliers(np.random.default_rng(5), n_side=16)
     src = tmp_path / "points.ply"
     write_ply(src, {"x": points[:, 0].astype(np.float32), "y": points[:, 1].astype(np.float32),
@@ -25,6 +28,17 @@ def test_filter_writes_surface_and_mesh_beside_the_input(tmp_path):
     assert set(np.unique(surface["inlier"])) <= {0, 1}
     _, mesh_faces, _ = read_ply(tmp_path / "mesh.ply")
     assert mesh_faces is not None and mesh_faces.shape[1] == 3
+    # the summary: how many points were removed and the RMS over all points beside the kept ones
+    summary = json.loads((tmp_path / "filter_summary.json").read_text())
+    removed = int(np.count_nonzero(surface["inlier"] == 0))
+    assert summary["n_points"] == len(points) and summary["n_removed"] == removed and summary["seed"] == 11
+    residual = np.asarray(surface["residual"], float)
+    assert summary["rms_residual_all_m"] == pytest.approx(np.sqrt(np.mean(residual ** 2)))
+    assert summary["rms_residual_inliers_m"] == pytest.approx(
+        np.sqrt(np.mean(residual[surface["inlier"] == 1] ** 2)))
+    out = capsys.readouterr().out
+    assert f"{len(points) - removed} of {len(points)} points kept, {removed} removed" in out
+    assert "over all" in out and "filter_summary.json" in out
 
 
 def test_filter_bad_input_exits_2(tmp_path, capsys):

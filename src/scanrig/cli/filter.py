@@ -7,6 +7,9 @@ from typing import Annotated
 
 import typer
 
+#: The filter's summary, written beside ``surface.ply``.
+SUMMARY_NAME = "filter_summary.json"
+
 
 def command(
     points: Annotated[Path, typer.Argument(help="Input PLY (its vertices need x, y, z, float32 or float64, in "
@@ -16,20 +19,24 @@ def command(
     device: Annotated[str, typer.Option("--device", help="Torch device: cpu, cuda or auto.")] = "cpu",
     architecture: Annotated[str, typer.Option("--architecture", help="'mlp' (tanh, 2 hidden layers) or 'ridge' (one layer of s(ax+by+c) units).")] = "mlp",
     max_chart_points: Annotated[int, typer.Option("--max-chart-points", help="Largest number of points per chart.")] = 4096,
-    sigma_floor_mm: Annotated[float, typer.Option("--sigma-floor-mm", help="Known sensor noise in mm; the noise scale never goes below it.")] = 0.0,
+    sigma_floor_mm: Annotated[float, typer.Option("--sigma-floor-mm", help="Known sensor noise in mm; the noise scale never goes below it, and sparse points are judged against it.")] = 0.0,
 ):
     """Reject gross errors and denoise a point cloud with a robust neural surface fit.
 
     Writes, beside the input (in the session folder when given one), surface.ply (one vertex per
     input point, in input order: x, y, z = denoised position, inlier 0/1, score, residual in
-    metres) and mesh.ply (the fitted surface).
+    metres), mesh.ply (the fitted surface) and filter_summary.json (points removed, residual RMS
+    over the kept points and over all of them, how far denoising moved them).
 
     Example: scanrig filter demo_session --q 0.25 --seed 1
     """
+    import json
+
     import numpy as np
 
     from scanrig.cli.progress import stage_progress
     from scanrig.errors import InputError
+    from scanrig.io.atomic import write_text_atomic
     from scanrig.io.filter_files import write_filter_files
     from scanrig.io.ply import read_points_with_sigma
     from scanrig.io.session import session_file
@@ -56,5 +63,12 @@ def command(
               f"--architecture {architecture} --max-chart-points {max_chart_points}",
               f"seed {seed}", "units m"]
     surface_path, mesh_path = write_filter_files(points.parent, result, mesh_vertices, faces, header)
-    typer.echo(f"{int(result.inlier.sum())} of {len(xyz)} points kept ({len(result.charts)} charts); "
-               f"wrote {surface_path} and {mesh_path} ({len(faces)} triangles)")
+    summary = result.summary()
+    summary_path = points.parent / SUMMARY_NAME
+    write_text_atomic(summary_path, json.dumps({"command": header[0], "seed": seed, **summary}, indent=2) + "\n")
+    typer.echo(f"{len(xyz) - summary['n_removed']} of {len(xyz)} points kept, {summary['n_removed']} removed "
+               f"({len(result.charts)} charts, {summary['n_sparse']} points judged as sparse); residual RMS "
+               f"{summary['rms_residual_inliers_m'] * 1e3:.4f} mm over the kept points, "
+               f"{summary['rms_residual_all_m'] * 1e3:.4f} mm over all; denoising moved all points by "
+               f"{summary['rms_denoised_shift_all_m'] * 1e3:.4f} mm RMS; wrote {surface_path}, {mesh_path} "
+               f"({len(faces)} triangles) and {summary_path}")

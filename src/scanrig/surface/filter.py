@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -10,10 +10,11 @@ from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
 from scanrig.surface.charts import (MIN_CHART_POINTS, Chart, blend_weights, estimate_normals, halve_charts,
                                     split_charts)
-from scanrig.surface.hampel import check_q
+from scanrig.surface.hampel import check_q, refined_scale
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
 from scanrig.surface.sheets import split_sheets
+from scanrig.surface.sparse import SPARSE_CHART_POINTS, SUPPORT_POINTS, local_quadratic_scores
 from scanrig.surface.surroundings import surroundings_score
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
@@ -31,6 +32,9 @@ TRUST_FACTOR = 3.0
 #: demo cloud of one chart (held-out scale 0.30 mm, median point sigma 0.09 mm) moved a point from
 #: 0.13 mm to 0.39 mm off the true surface.
 POINT_TRUST_FACTOR = float(np.sqrt(3.0))
+#: Least-squares epochs of the networks of sparse charts (see :func:`filter_points`); the
+#: local quadratics judge their points.
+SPARSE_EPOCHS = 100
 #: Rounds of halving the charts that cannot follow their surface (see :func:`_loose_charts`).
 REFINE_ROUNDS = 6
 #: Largest angle between a point's normal and the normal of a chart that may move it.
@@ -54,7 +58,8 @@ class FilterResult:
         Robust score ``|held-out residual| / sigma+`` (sigma+ the bootstrap upper bound of the
         chart's noise scale; for a chart that is not trusted, see ``TRUST_FACTOR``, the
         reference noise instead, and at least the point's score against the trusted surface
-        around it, see :func:`_blend_outputs`); dimensionless, larger is more suspicious.
+        around it, see :func:`_blend_outputs`; for a ``sparse`` point, against its local robust
+        quadratic, see :func:`_sparse_outputs`); dimensionless, larger is more suspicious.
     residual : (N,) float array
         Signed distance from the fitted surface along the chart normal, metres.
     sigma : (N,) float array
@@ -65,6 +70,11 @@ class FilterResult:
     uv_scale, z_scale : (C,) float arrays
         Metres per normalised unit of each chart's ``(u, v)`` and height.
     settings : FitSettings
+    sparse : (N,) bool array or None
+        Points judged by local robust quadratics instead of their chart's network (cores of
+        charts with fewer than ``SPARSE_CHART_POINTS`` members, see :mod:`scanrig.surface.sparse`).
+    measured : (N, 3) float array or None
+        The input points, metres.
     """
 
     denoised: np.ndarray
@@ -77,6 +87,30 @@ class FilterResult:
     uv_scale: np.ndarray
     z_scale: np.ndarray
     settings: FitSettings
+    sparse: np.ndarray | None = None
+    measured: np.ndarray | None = None
+
+    def summary(self) -> dict:
+        """What the filter did, so that figures over the kept points never stand alone.
+
+        Returns
+        -------
+        dict
+            ``n_points`` (input points), ``n_removed`` (flagged, not inliers), ``n_sparse``
+            (judged by local quadratics, :mod:`scanrig.surface.sparse`), ``rms_residual_inliers_m``
+            (RMS distance of the kept points from the fitted surface, metres) and
+            ``rms_residual_all_m`` (the same over every input point), and
+            ``rms_denoised_shift_all_m`` (RMS of how far the denoised positions moved the input
+            points, all of them, metres).
+        """
+        residual = np.nan_to_num(self.residual)
+        kept = self.inlier
+        shift = np.linalg.norm(self.denoised - self.measured, axis=1) if self.measured is not None else np.zeros(0)
+        return {"n_points": len(kept), "n_removed": int(np.count_nonzero(~kept)),
+                "n_sparse": int(np.count_nonzero(self.sparse)) if self.sparse is not None else 0,
+                "rms_residual_inliers_m": float(np.sqrt(np.mean(residual[kept] ** 2))) if kept.any() else float("nan"),
+                "rms_residual_all_m": float(np.sqrt(np.mean(residual ** 2))),
+                "rms_denoised_shift_all_m": float(np.sqrt(np.mean(shift ** 2))) if shift.size else 0.0}
 
 
 def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.25,
@@ -85,6 +119,12 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
                   train_mask: np.ndarray | None = None,
                   point_sigma: np.ndarray | None = None) -> FilterResult:
     """Robustly fit a surface to a point cloud, flag bad points and denoise the good ones.
+
+    The charts with at least ``SPARSE_CHART_POINTS`` members are fitted by the robust networks
+    and refined; the points of smaller charts are judged by local robust quadratics against the
+    noise learnt on the dense charts (``sigma_floor`` or ``point_sigma`` when given; see
+    :mod:`scanrig.surface.sparse`), and their charts' networks are fitted by least squares on
+    the points kept, for projections only: they move no point.
 
     Parameters
     ----------
@@ -113,7 +153,7 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         ``2 * n_folds`` of them.
     point_sigma : (N,) float array, optional
         Each point's own predicted standard deviation, metres (``sigma`` of ``points.ply``): an
-        absolute reference for ``denoised``. A chart moves a point only if its noise scale is
+        absolute reference for ``denoised`` and for judging sparse points. A chart moves a point only if its noise scale is
         at most ``POINT_TRUST_FACTOR`` times the point's sigma and the point lies within
         ``r * point_sigma`` of the fit, so no point moves by more than that; without it the
         reference is relative (the typical chart), which a cloud of one chart cannot use.
@@ -155,10 +195,53 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     r = settings.constants.r
     charts = split_sheets(points, normals, split_charts(points, normals, max_points=max_chart_points, q=q),
                           q=q, cut=r, point_sigma=point_sigma)
+    sparse = _sparse_points(charts, len(points))
+    is_sparse = np.array([sparse[c.core].all() for c in charts])
+    fitted = []  # (charts, fits, uv_scale, z_scale) of the dense charts, then of the sparse ones
+    if not is_sparse.all():
+        fitted.append(_fit_refined(points, normals, [c for c, s in zip(charts, is_sparse) if not s], settings, rng,
+                                   train_mask, sigma_floor, device, point_sigma))
+    judged = np.flatnonzero(sparse)
+    sparse_outputs = None
+    if judged.size:
+        # the noise learnt where the data are dense (the typical dense chart's), unless known
+        noise = sigma_floor
+        if noise <= 0 and fitted:
+            dense_charts, dense_fits, _, dense_z = fitted[0]
+            noise = _typical_noise(dense_charts, _chart_noise(dense_fits, dense_z, r)[1])
+        if point_sigma is not None:
+            noise = np.maximum(point_sigma[judged], sigma_floor)
+        sparse_outputs = _sparse_outputs(points, normals, judged, noise, q, rng)
+    if is_sparse.any():
+        # their networks serve the projections and the mesh only: least squares on the points the
+        # local quadratics keep (or on ``train_mask``), the plain schedule
+        kept = np.ones(len(points), bool)
+        kept[judged] = sparse_outputs[0] <= r
+        for chart in charts:  # a network needs a few points per fold
+            if kept[chart.members].sum() < 2 * settings.n_folds:
+                kept[chart.members] = True
+        fitted.append((sparse_charts := [c for c, s in zip(charts, is_sparse) if s],
+                       *_fit(points, sparse_charts, replace(settings, loss="mse", epochs=SPARSE_EPOCHS), rng,
+                             kept if train_mask is None else train_mask, sigma_floor, device, point_sigma)))
+    charts = [c for part in fitted for c in part[0]]
+    fits = fitted[0][1] if len(fitted) == 1 else concatenate_fits([part[1] for part in fitted],
+                                                                  np.arange(len(charts)))
+    uv_scale, z_scale = (np.concatenate([part[i] for part in fitted]) for i in (2, 3))
+    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
+                          point_sigma, sparse=sparse, sparse_outputs=sparse_outputs)
+
+
+def _fit_refined(points: np.ndarray, normals: np.ndarray, charts: list[Chart], settings: FitSettings,
+                 rng: np.random.Generator, train_mask: np.ndarray | None, sigma_floor: float, device: str,
+                 point_sigma: np.ndarray | None) -> tuple[list[Chart], ChartFits, np.ndarray, np.ndarray]:
+    """Fit the charts' networks, then halve and refit those that cannot follow their surface (a
+    side of a step too small to be a sheet, a network that failed), up to ``REFINE_ROUNDS`` times.
+
+    Returns the final charts, their fits, uv and height scales (C,).
+    """
+    q, r = settings.q, settings.constants.r
     fits, uv_scale, z_scale = _fit(points, charts, settings, rng, train_mask, sigma_floor, device, point_sigma)
     for _ in range(REFINE_ROUNDS):
-        # a chart that cannot follow its surface (a side of a step too small to be a sheet, a
-        # network that failed) is halved and refitted
         loose = _loose_charts(charts, fits, z_scale, settings, sigma_floor, point_sigma)
         loose &= np.array([len(c.core) >= 2 * MIN_CHART_POINTS for c in charts])
         if not loose.any():
@@ -175,9 +258,17 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
         charts = [charts[i] for i in keep] + halves
         uv_scale = np.concatenate([uv_scale[keep], new_uv_scale])
         z_scale = np.concatenate([z_scale[keep], new_z_scale])
+    return charts, fits, uv_scale, z_scale
 
-    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
-                          point_sigma)
+
+def _sparse_points(charts: list[Chart], n: int) -> np.ndarray:
+    """(n,) bool: the core points of charts with fewer than ``SPARSE_CHART_POINTS`` members, too
+    few for their network's judgement (see :mod:`scanrig.surface.sparse`)."""
+    sparse = np.zeros(n, bool)
+    for chart in charts:
+        if len(chart.members) < SPARSE_CHART_POINTS:
+            sparse[chart.core] = True
+    return sparse
 
 
 def _fit(points: np.ndarray, charts: list[Chart], settings: FitSettings, rng: np.random.Generator,
@@ -256,7 +347,8 @@ def _typical_noise(charts: list[Chart], sigma_fit: np.ndarray) -> float:
 
 def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart], fits: ChartFits,
                    uv_scale: np.ndarray, z_scale: np.ndarray, settings: FitSettings,
-                   sigma_floor: float, point_sigma: np.ndarray | None = None) -> FilterResult:
+                   sigma_floor: float, point_sigma: np.ndarray | None = None, *,
+                   sparse: np.ndarray | None = None, sparse_outputs: tuple | None = None) -> FilterResult:
     """Blend the per-chart fits into per-point outputs (see :func:`filter_points`).
 
     ``residual``, ``score`` and ``sigma`` use the partition of unity of every chart a point is a
@@ -281,12 +373,20 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     (:func:`~scanrig.surface.surroundings.surroundings_score`; the larger score counts): the
     fit of a chart cut from a blob runs through the blob (same scan: recall 0.919 instead of
     0.817, FRR unchanged).
+
+    The ``sparse`` points (:func:`_sparse_points`) take their score, residual and sigma from
+    ``sparse_outputs`` (:func:`_sparse_outputs`, in the order of ``np.flatnonzero(sparse)``), and
+    charts of sparse points move no point.
     """
     n = len(points)
     r = settings.constants.r
+    sparse = np.zeros(n, bool) if sparse is None else sparse
+    dense = np.array([not sparse[c.core].all() for c in charts])
     sigma_c, sigma_fit = _chart_noise(fits, z_scale, r)
-    # reference noise: the known sensor noise if given, else the typical chart's
-    sigma_ref = sigma_floor if sigma_floor > 0 else max(_typical_noise(charts, sigma_fit), 1e-300)
+    # reference noise: the known sensor noise if given, else the typical dense chart's
+    typical = _typical_noise(*((charts, sigma_fit) if dense.all() or not dense.any()
+                               else ([c for c, d in zip(charts, dense) if d], sigma_fit[dense])))
+    sigma_ref = sigma_floor if sigma_floor > 0 else max(typical, 1e-300)
     trusted = sigma_fit <= TRUST_FACTOR * sigma_ref
     cos_max = np.cos(MAX_NORMAL_ANGLE)
     acc = np.zeros((n, 7))  # weight, denoised xyz, residual, score, sigma
@@ -305,7 +405,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
             np.full(m, sigma_c[c]),
         ])
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
-        if trusted[c]:
+        if trusted[c] and dense[c]:
             agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
             # a point beyond the rejection point of the fit is flagged, never moved: it is a gross
             # error or it lies on structure the fit smooths away (an edge, a step, a corner),
@@ -324,16 +424,40 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     covered = acc_d[:, 0] > 0
     denoised = points.copy()
     denoised[covered] = acc_d[covered, 1:] / acc_d[covered, :1]
-    score = out[:, 4]
+    score, residual, sigma = out[:, 4], out[:, 3], out[:, 5]
     # a point of an untrusted chart that no trusted chart owns is also judged by the trusted surface around it
-    owned = np.zeros(n, bool)
-    for c in np.flatnonzero(trusted):
+    owned = sparse.copy()
+    for c in np.flatnonzero(trusted & dense):
         owned[charts[c].core] = True
-    score = np.fmax(score, surroundings_score(points, normals, [charts[c] for c in np.flatnonzero(~trusted)], owned,
-                                              np.flatnonzero(owned & (score <= r)), sigma_ref, r))
+    score = np.fmax(score, surroundings_score(points, normals, [charts[c] for c in np.flatnonzero(~trusted & dense)],
+                                              owned, np.flatnonzero(owned & ~sparse & (score <= r)), sigma_ref, r))
+    if sparse_outputs is not None:
+        judged = np.flatnonzero(sparse)
+        score[judged], residual[judged], sigma[judged] = sparse_outputs
     return FilterResult(denoised=denoised, inlier=score <= r, score=score,
-                        residual=out[:, 3], sigma=out[:, 5], charts=charts, fits=fits,
-                        uv_scale=uv_scale, z_scale=z_scale, settings=settings)
+                        residual=residual, sigma=sigma, charts=charts, fits=fits,
+                        uv_scale=uv_scale, z_scale=z_scale, settings=settings, sparse=sparse, measured=points)
+
+
+def _sparse_outputs(points: np.ndarray, normals: np.ndarray, judged: np.ndarray, noise: float | np.ndarray, q: float,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Score, residual (metres) and noise scale (metres) of sparse points, each (m,).
+
+    Each point is judged by the least-trimmed-squares quadratic of its neighbours
+    (:func:`~scanrig.surface.sparse.local_quadratic_scores`): its score is its held-out residual
+    over the larger of ``noise * sqrt(1 + g)`` and the fit's local misfit, and 0 where the fit
+    does not pass near the point (fewer than ``SUPPORT_POINTS`` kept neighbours close to it).
+    ``noise`` is the known noise (scalar or per point, metres) or the typical dense chart's; 0
+    when the cloud has neither, and then the robust scale (breakdown point ``q``) of the points'
+    own standardised residuals.
+    """
+    residual, g, misfit, support = local_quadratic_scores(points, normals, judged, rng=rng)
+    spread = np.sqrt(1.0 + g)
+    if np.all(np.asarray(noise) <= 0):
+        noise = refined_scale(residual / spread, q)[0]
+    scale = np.maximum(np.maximum(noise * spread, misfit), 1e-300)
+    score = np.where(support >= SUPPORT_POINTS, np.abs(residual) / scale, 0.0)
+    return score, residual, scale
 
 
 def _resolve_device(device: str) -> str:
