@@ -135,7 +135,7 @@ def test_weighted_solve_matches_numpy_least_squares():
     feats = torch.rand(4, 5, 50, generator=gen)  # copy c's points in blocks 2c and 2c + 1
     t = torch.randn(4, 50, generator=gen)
     weight = torch.rand(4, 50, generator=gen, dtype=torch.float64)
-    coef = _weighted_solve(feats, t, weight, torch.tensor([0, 0, 1, 1]), 2).numpy()
+    coef = _weighted_solve(feats, t, weight.sqrt(), torch.tensor([0, 0, 1, 1]), 2).numpy()
     for c in range(2):
         f = feats[2 * c: 2 * c + 2].transpose(1, 2).reshape(-1, 5).double().numpy()
         f = np.column_stack([f, np.ones(len(f))])  # the bias
@@ -215,6 +215,6 @@ def test_monotone_output_layer_irls_never_raises_a_weight_and_leaves_the_optimum
     assert torch.all(capped <= weight)
     with torch.no_grad():
         feats = nets.features(rows.x, rows.owner)
-        optimum = _weighted_solve(feats, rows.t, capped, rows.owner, rows.n_copies).float()
+        optimum = _weighted_solve(feats, rows.t, capped.sqrt(), rows.owner, rows.n_copies).float()
     torch.testing.assert_close(nets.weights[-1][:, :, 0], optimum[:, :-1], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(nets.biases[-1][:, 0, 0], optimum[:, -1], rtol=1e-5, atol=1e-6)
