@@ -4,7 +4,7 @@ The cloud travels as base64 little-endian float32 arrays (centred and scaled to 
 float32 keeps ~1e-7 of the object size). The script fills an ``ImageData`` with a depth buffer:
 the mesh's triangles first (flat grey, shaded by the angle of their normal to the line of sight,
 rasterised with edge functions), then every point as a 2-4 px square coloured from a 256-entry
-colour map, drawn where it is not behind the mesh by more than :data:`POINT_DEPTH_BIAS` (points
+colour map (1 px over the mesh for a cloud of 5000 points or more), drawn where it is not behind the mesh by more than :data:`POINT_DEPTH_BIAS` (points
 lie on the surface they measured). One typed-array pass per redraw, fast for 200 000 points and
 as many triangles. Drag rotates, the wheel zooms, shift-drag pans; a selector shows mesh and
 points, points only, or the mesh only.
@@ -134,6 +134,7 @@ _TEMPLATE = """
   const colour = new Uint32Array(n);
   const BG = 0xff202020, GREY = 0xff909090;
   const SPLAT = n < 5000 ? 4 : n < 50000 ? 3 : 2;          // sparse clouds get bigger dots
+  const SPLAT_ON_MESH = n < 5000 ? SPLAT : 1;               // a dense cloud over its mesh leaves the mesh visible
   let yaw = 0.6, pitch = -0.5, zoom = 1.0, panX = 0, panY = 0, field = 0;
 
   function recolour() {
@@ -197,16 +198,16 @@ _TEMPLATE = """
     const s = 0.45 * Math.min(W, H) * zoom, ox = W / 2 + panX, oy = H / 2 + panY;
     const mode = show.value;
     if (mode !== "points") drawMesh(cy, sy, cp, sp, s, ox, oy);
-    const bias = mode === "points" ? 0 : DATA.bias;
+    const bias = mode === "points" ? 0 : DATA.bias, splat = mode === "points" ? SPLAT : SPLAT_ON_MESH;
     for (let i = 0; i < (mode === "mesh" ? 0 : n); i++) {
       const x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
       const x1 = cy * x - sy * y, y1 = sy * x + cy * y;      // yaw about world z (up)
       const y2 = cp * y1 - sp * z, z2 = sp * y1 + cp * z;    // pitch about the screen x axis
       const u = Math.round(ox + s * x1), v = Math.round(oy - s * z2);
-      if (u < 0 || v < 0 || u > W - SPLAT || v > H - SPLAT) continue;
+      if (u < 0 || v < 0 || u > W - splat || v > H - splat) continue;
       const c = colour[i];
-      for (let dv = 0; dv < SPLAT; dv++) {                   // SPLAT x SPLAT square, nearest wins
-        for (let du = 0, j = (v + dv) * W + u; du < SPLAT; du++, j++) {
+      for (let dv = 0; dv < splat; dv++) {                   // splat x splat square, nearest wins
+        for (let du = 0, j = (v + dv) * W + u; du < splat; du++, j++) {
           if (y2 < depth[j] + bias && y2 < pdepth[j]) { pdepth[j] = y2; pix[j] = c; }
         }
       }
