@@ -20,6 +20,8 @@ moves every corner fitted to a board seen square-on by up to ``1 / (2 s)`` px.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.special import ndtr
 
@@ -62,9 +64,29 @@ def reach_px(sigma_px: float) -> int:
     return int(np.ceil(3.0 * sigma_px + 1.0))
 
 
-def _box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
-    """``(box ⊛ G)(d)``: the PSF integrated over a unit interval centred ``d`` away."""
-    return ndtr((d + 0.5) / sigma_px) - ndtr((d - 0.5) / sigma_px)
+#: Points of the tabulated PSF-over-pixel weights across one pixel (linear interpolation between
+#: them errs by 1e-7 of a weight at σ = 0.3 px, 4e-8 at 0.6 px).
+_TABLE_POINTS = 2048
+
+
+@functools.lru_cache(maxsize=8)
+def _box_gauss_table(reach: int, sigma_px: float) -> np.ndarray:
+    """``(box ⊛ G)(o - t)`` at ``o`` on a regular grid over [-0.5, 0.5] (rows) for the taps
+    ``t = -reach..reach`` (columns): the PSF integrated over the unit intervals around the taps
+    (neighbouring intervals share an end, so the Gaussian CDF is evaluated once per end)."""
+    offset = np.linspace(-0.5, 0.5, _TABLE_POINTS + 1)
+    ends = np.arange(-reach - 0.5, reach + 1.0)
+    return -np.diff(ndtr((offset[:, None] - ends) / sigma_px), axis=1)
+
+
+def _box_gauss_taps(offset: np.ndarray, reach: int, sigma_px: float) -> np.ndarray:
+    """``(box ⊛ G)(offset - t)`` for the taps ``t = -reach..reach``, shape ``offset.shape + (T,)``,
+    interpolated in :func:`_box_gauss_table`."""
+    table = _box_gauss_table(reach, float(sigma_px))
+    x = (offset + 0.5) * _TABLE_POINTS
+    i = np.clip(x.astype(np.int64), 0, _TABLE_POINTS - 1)
+    f = (x - i)[..., None]
+    return table[i] * (1.0 - f) + table[i + 1] * f
 
 
 def _box_box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -113,8 +135,8 @@ def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: 
         v, u = np.divmod(idx, w)
         offsets = edge_sample_offsets(np.column_stack([u, v]).astype(np.float64), s)     # (n, s², 2)
         # K(x - j) for the (2 reach + 1)² pixels j around each edge pixel, separable in x and y.
-        kx = _box_gauss(offsets[:, :, 0, None] - taps, sigma_px)                        # (n, s², T)
-        ky = _box_gauss(offsets[:, :, 1, None] - taps, sigma_px)
+        kx = _box_gauss_taps(offsets[:, :, 0], reach, sigma_px)                          # (n, s², T)
+        ky = _box_gauss_taps(offsets[:, :, 1], reach, sigma_px)
         patch = np.matmul((ky * edge_radiance[a:a + _BLOCK, :, None]).transpose(0, 2, 1), kx) / (s * s)
         ty, tx = np.meshgrid(taps.astype(np.int64), taps.astype(np.int64), indexing="ij")
         row = v[:, None, None] + ty[None]
