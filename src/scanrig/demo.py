@@ -39,8 +39,9 @@ MODES = ("stripe", "spot")
 #: Sheets of the default stripe sweep, and of the quick run.
 STRIPE_FRAMES = 100
 QUICK_STRIPE_FRAMES = 12
-#: Default largest input of the surface filter (see DemoSettings.filter_max_points).
+#: Default largest input of the surface filter (see DemoSettings.filter_max_points), and the quick run's.
 FILTER_MAX_POINTS = 6000
+QUICK_FILTER_MAX_POINTS = 1500
 #: The inspection's tolerance on |deviation| (the stripe reconstruction's precision cut).
 INSPECTION_TOLERANCE_M = 1e-4
 
@@ -58,7 +59,7 @@ class DemoSettings:
     n_shots : int
         Calibration poses of the cube.
     budget : int
-        Largest number of laser beams (frames) of the scan.
+        Frames of the scan: sheets of the stripe sweep, or the beam budget of the adaptive spot scan.
     spacing_m : float
         Target point spacing of the adaptive scan, metres.
     image_scale : float
@@ -90,9 +91,9 @@ class DemoSettings:
         stripe sweep (:data:`STRIPE_FRAMES`, quick :data:`QUICK_STRIPE_FRAMES`).
         """
         stripe = mode == "stripe"
-        if quick:   # stripe frames at half size: the sweep renders and detects every scan line
+        if quick:
             base = cls(n_shots=4, budget=QUICK_STRIPE_FRAMES if stripe else 80, cross_validate=False, workers=workers,
-                       image_scale=0.5 if stripe else 1.0)
+                       filter_max_points=QUICK_FILTER_MAX_POINTS)
         else:
             base = cls(budget=STRIPE_FRAMES if stripe else 100, workers=workers)
         if frames is not None:
@@ -194,7 +195,7 @@ def run_demo(out: str | Path = "scanrig-demo", *, mode: str = "stripe", seed: in
     seed : int
         Seeds every random choice (image noise, cube poses, planner, report subsample).
     quick : bool
-        A smaller run (4 cube poses; 12 sheets at half image size, or 80 spot beams) for tests.
+        A smaller run (4 cube poses; 12 sheets or 80 spot beams; the filter on 1500 points) for tests.
     frames : int, optional
         Frames of the scan (stripe: 100 sheets, quick 12; spot: 100 beams, quick 80).
     workers : int
@@ -368,7 +369,7 @@ class _Run:
         ``scanrig simulate --mode stripe``): upright, so that they cross the epipolar lines of the
         cameras, which stand side by side at about the head's height. (A sheet fanned sideways,
         as the planner's uniform pass gives, is seen nearly edge-on by those cameras: its stripe
-        runs along their epipolar lines and locates nothing.) The frames are independent, so they
+        runs along their epipolar lines and locates few points.) The frames are independent, so they
         are rendered in forked processes, each with its own generator; the store then receives
         them in beam order through the rig protocol, as from hardware.
         """

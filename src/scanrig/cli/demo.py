@@ -20,8 +20,7 @@ def command(
                     "[default: stripe 100, quick 12; spot 100, quick 80]")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Processes for frame processing and detection.")] = 2,
     quick: Annotated[bool, typer.Option(
-        "--quick", help="A small run (4 cube poses; 12 sheets at half image size, or 80 spot beams) for "
-                    "tests.")] = False,
+        "--quick", help="A small run (4 cube poses; 12 sheets or 80 spot beams) for tests.")] = False,
 ):
     """Simulate, calibrate, scan, detect, reconstruct, filter, evaluate and report on the default scene.
 
