@@ -81,7 +81,7 @@ CASES = {
     "demo into a scanned session": (no_change, ["demo", "--out", "{s}", "--quick"],
                                     r"is not empty \(it holds .*\) and scanrig demo would overwrite files there"),
     "demo unknown mode": (no_change, ["demo", "--out", "{s}/demo", "--mode", "blob"],
-                          r"mode must be one of \('spot', 'stripe'\), got 'blob'"),
+                          r"mode must be one of \('stripe', 'spot'\), got 'blob'"),
 }
 
 
