@@ -13,7 +13,7 @@ from tests.reliability.matrix import snapshot
 STAGES = (
     (["detect", "{s}", "--mode", "spot"], {"traces.parquet"}),
     (["reconstruct", "{s}", "--out", "{s}/points_again.ply"], {"points_again.ply"}),
-    (["filter", "{s}", "--seed", "1", "--architecture", "ridge"], {"surface.ply", "mesh.ply"}),
+    (["filter", "{s}", "--seed", "1", "--architecture", "ridge"], {"surface.ply", "mesh.ply", "filter_summary.json"}),
     (["evaluate", "{s}"], {"points_distances.png"}),
     (["report", "{s}", "--max-points", "100"], {"report.html"}),
     (["export", "{s}", "--format", "obj"], {"export/obj/points.obj", "export/obj/surface.obj",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from scanrig.sim import primitives
@@ -75,12 +75,16 @@ def test_embree_hits_match_numpy_reference():
 
 @settings(max_examples=30, deadline=None)
 @given(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-60, 60), st.floats(-60, 60))
+@example(0.25, -0.296875, 45.0, 60.0)  # off a 2 m plane's edge
+@example(-0.3, 0.3, 60.0, 60.0)  # a 2 m plane there lies above a ray starting at 1.5 m
 def test_hit_points_lie_on_the_plane(x, y, tilt_x, tilt_y):
     from scanrig.sim.scene import place
 
-    mesh = place(primitives.plane((2.0, 2.0)), (0.0, 0.0, 0.1), (tilt_x, tilt_y, 0.0))
+    # Tilted 60° about both axes the plane rises to z = 1.66 m and its hit points lie up to 1.6 m
+    # from its centre within the drawn x, y: rays start above it, and the plane is 4 m wide.
+    mesh = place(primitives.plane((4.0, 4.0)), (0.0, 0.0, 0.1), (tilt_x, tilt_y, 0.0))
     caster = RayCaster([mesh])
-    origin = np.array([[x, y, 1.5]])
+    origin = np.array([[x, y, 3.0]])
     hits = caster.cast(origin, np.array([[0.0, 0.0, -1.0]]))
     n = mesh.face_normals[0]
     assert hits.hit[0]
