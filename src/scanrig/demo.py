@@ -410,7 +410,7 @@ class _Run:
     def reconstruct(self) -> str:
         from scanrig.reconstruct.pipeline import reconstruct_session
 
-        info = reconstruct_session(self.out, comments=(f"seed: {self.summary.seed}", "scanrig demo"))
+        info = reconstruct_session(self.out, seed=self.summary.seed, comments=("scanrig demo",))
         self.summary.n_points = int(info["points"])
         # Spots: candidates the cross-camera matching left out; stripes: multi-view pairs off the light plane.
         self.summary.n_rejected = int(info["n_candidates"] - info["n_candidates_used"] if self.mode == "spot"

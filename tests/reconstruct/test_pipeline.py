@@ -31,10 +31,11 @@ def _session(tmp_path, rig=None, n_frames=40, seed=41):
 
 def test_session_to_points_ply(tmp_path):
     p_true = _session(tmp_path)
-    summary = reconstruct_session(tmp_path, comments=("seed: 41",))
+    summary = reconstruct_session(tmp_path, seed=41, comments=("scanrig test",))
     cloud, comments = read_points(tmp_path / "points.ply")
     assert summary["points"] == len(cloud) > 35
-    assert UNITS_COMMENT in comments and "seed: 41" in comments
+    assert UNITS_COMMENT in comments and "scanrig test" in comments
+    assert [c for c in comments if c.startswith("seed:")] == ["seed: 41"]
     err = cloud.p_world - p_true[cloud.frame]
     assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < RMS_TOL_M
     assert np.all(cloud.sigma > 0) and np.all(cloud.n_views >= 2)
