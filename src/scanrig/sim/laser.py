@@ -175,7 +175,7 @@ class GaussianBeams:
             Distance back along the dominant beam's axis to its source (the laser head's exit
             plane, or the emitting surface's tangent plane): the shadow test length.
         """
-        n, m = len(x), len(self.power_W)
+        n = len(x)
         idx, valid = self._candidates(x)
         total = np.zeros(n)
         arg = np.zeros(n, dtype=np.int64)
@@ -183,17 +183,24 @@ class GaussianBeams:
         chunk = max(1, (1 << 22) // idx.shape[1])
         for s in range(0, n, chunk):
             b = idx[s:s + chunk]                                          # (n, k) beam indices
-            rel = x[s:s + chunk, None, :] - self.origin[b]                # (n, k, 3)
-            z = np.einsum("nkj,nkj->nk", rel, self.direction[b])
-            rho2 = np.einsum("nkj,nkj->nk", rel, rel) - z * z
-            w = self.radius(z, b)
-            inten = 2 * self.power_W[b] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
-            inten[(z <= 0) | ~valid[s:s + chunk]] = 0.0
+            # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
+            rows, cols = np.nonzero(valid[s:s + chunk])
+            pair = b[rows, cols]
+            rel = x[s + rows] - self.origin[pair]                         # (p, 3)
+            z_pair = np.einsum("ij,ij->i", rel, self.direction[pair])
+            rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
+            w = self.radius(z_pair, pair)
+            inten_pair = 2 * self.power_W[pair] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
+            inten_pair[z_pair <= 0] = 0.0
+            inten = np.zeros(b.shape)
+            inten[rows, cols] = inten_pair
+            z = np.zeros(b.shape)
+            z[rows, cols] = z_pair
             total[s:s + chunk] = inten.sum(axis=1)
             a = inten.argmax(axis=1)
-            rows = np.arange(len(a))
-            arg[s:s + chunk] = b[rows, a]
-            path[s:s + chunk] = z[rows, a]
+            at = np.arange(len(a))
+            arg[s:s + chunk] = b[at, a]
+            path[s:s + chunk] = z[at, a]
         if self.emitter_normal is not None:
             n_e = self.emitter_normal[arg]
             path = np.einsum("ij,ij->i", x - self.origin[arg], n_e) / np.einsum("ij,ij->i", self.direction[arg], n_e)

@@ -215,8 +215,7 @@ class CameraView:
         caster = self.scene.raycaster
         ok, hits = caster.first_hits(origin, dirs)
         radiance = np.zeros(len(q))
-        p, n, ng, view = hits.point, hits.shading_normal, hits.normal, -dirs[ok]
-        albedo, spec, rough = self._surface(hits.obj, p)
+        p, n, ng = hits.point, hits.shading_normal, hits.normal
         out = np.zeros(len(p))
         for source in trace.sources:
             inten, prop, path = source.evaluate(p)
@@ -227,12 +226,14 @@ class CameraView:
             shadow = caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit], -prop[lit], path[lit] - 2 * SURFACE_EPS_M)
             lit = lit[~shadow]
             e = inten[lit] * cos_i[lit]
-            brdf = albedo[lit] / np.pi
-            shiny = spec[lit] > 0
-            if np.any(shiny):
+            # the surface only where this source's light lands
+            albedo, spec, rough = self._surface(hits.obj[lit], p[lit])
+            brdf = albedo / np.pi
+            shiny = np.flatnonzero(spec > 0)
+            if shiny.size:
                 sl = lit[shiny]
-                cos_a = np.einsum("ij,ij->i", reflect(prop[sl], n[sl]), view[sl])
-                brdf[shiny] += spec[sl] * specular_lobe(cos_a, rough[sl])
+                cos_a = np.einsum("ij,ij->i", reflect(prop[sl], n[sl]), -dirs[ok[sl]])
+                brdf[shiny] += spec[shiny] * specular_lobe(cos_a, rough[shiny])
             out[lit] += e * brdf
         radiance[ok] = out
         return radiance
