@@ -87,6 +87,9 @@ class Scene:
     colour : ColourResponse or None
         How colour cameras see the laser and the room light (:mod:`scanrig.sim.colour`); None for
         grey cameras.
+    board_flex_m : (2,) float
+        Flex terms ``(c_x, c_y)`` (metres) bending every board of the calibration target
+        (:func:`scanrig.targets.target.flex_shape`); (0, 0) for flat boards.
     """
 
     name: str
@@ -98,6 +101,7 @@ class Scene:
     laser: LaserSpec = field(default_factory=LaserSpec)
     sensor: Sensor = field(default_factory=Sensor)
     colour: ColourResponse | None = None
+    board_flex_m: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         if not self.objects:
