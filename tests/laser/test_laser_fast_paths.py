@@ -166,15 +166,20 @@ def test_candidates_match_a_plain_search(along):
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_prominence_table_matches_the_windows_and_a_plain_loop(dtype):
+@pytest.mark.parametrize("transposed", [False, True])
+def test_prominence_table_and_erosion_match_the_windows_and_a_plain_loop(dtype, transposed):
     rng = np.random.default_rng(21)
     signal = rng.integers(0, 255, size=(23, 61)).astype(dtype)
+    if transposed:  # a column scan's view of a contiguous frame, as the detector passes it
+        signal = np.ascontiguousarray(signal.T).T
     n = 200
     line = rng.integers(0, 23, n)
     pos = np.r_[0, 60, 1, 59, rng.integers(0, 61, n - 4)]  # the frame's edges included
-    reach = rng.integers(1, 40, n)
+    # most at one reach (the unclipped candidates), the others spread
+    reach = np.where(rng.random(n) < 0.7, 7, rng.integers(1, 40, n))
     windows = peaks._prominence_from_windows(signal, line, pos, reach)
     table = peaks._prominence_from_table(signal, line, pos, reach)
+    erosion = peaks._prominence_from_erosion(signal, line, pos, reach)
     far = 41  # beyond the frame its edge pixels repeat
     padded = np.pad(signal.astype(np.float64), ((1, 1), (far, far)), mode="edge")
     box = sum(padded[i : i + 23, j : j + 61 + 2 * far - 2] for i in range(3) for j in range(3))
@@ -188,3 +193,4 @@ def test_prominence_table_matches_the_windows_and_a_plain_loop(dtype):
     expected = np.array([plain(k) for k in range(n)]).T
     np.testing.assert_allclose(windows, expected, atol=1e-3)
     np.testing.assert_allclose(table, expected, atol=1e-3)
+    np.testing.assert_allclose(erosion, expected, atol=1e-3)
