@@ -40,10 +40,16 @@ def test_rank0_is_on_the_bust_stripe(bust, use_dark):
     assert on_stripe.mean() >= 0.99
 
 
-def test_the_two_stripes_on_the_board_are_straight_to_their_sigma():
-    """The board is flat, so each laser's centres, undistorted, lie on a line. Straightness is
-    measured against the centres' own σ (the stripes are dim on black squares: σ ≈ 0.3 px),
-    with the intrinsics of the data set's PROVENANCE.md."""
+#: Undistorted columns of the two lasers on the board, px.
+BOARD_LINES = ((250, 400), (560, 720))
+#: Acceptance: each laser's centres on the flat board, undistorted, lie on a line to this RMS, px.
+STRAIGHT_RMS_PX = 0.3
+
+
+@pytest.fixture(scope="module")
+def board_lines():
+    """Per laser on the board: the undistorted rank <= 1 centres inside the board's outline
+    ``(n, 2)`` px and their σ ``(n,)`` px, with the intrinsics of the data set's PROVENANCE.md."""
     folder = CICLOP / "laser_on_pattern"
     on, off = read_image(folder / "laser-0-255-255-8-x.png"), read_image(folder / "laser-background-0-255-255-8-x.png")
     found, corners = cv2.findChessboardCorners(cv2.cvtColor(read_image(folder / "pattern.png"), cv2.COLOR_RGB2GRAY),
@@ -61,10 +67,15 @@ def test_the_two_stripes_on_the_board_are_straight_to_their_sigma():
     inside = np.array([cv2.pointPolygonTest(outline, (float(a), float(b)), False) >= 0 for a, b in q])
     q, sigma = q[inside], sigma[two][inside]
     flat = cv2.undistortPoints(q[:, None], camera, distortion, P=camera)[:, 0]
-    for lo, hi in ((250, 400), (560, 720)):  # the two lasers' columns
-        near = (flat[:, 0] > lo) & (flat[:, 0] < hi)
-        p, s = flat[near], sigma[near]
-        assert near.sum() > 450
+    near = [(flat[:, 0] > lo) & (flat[:, 0] < hi) for lo, hi in BOARD_LINES]
+    return [(flat[m], sigma[m]) for m in near]
+
+
+def test_the_two_stripes_on_the_board_are_straight_to_their_sigma(board_lines):
+    """The board is flat, so each laser's centres, undistorted, lie on a line. Straightness is
+    measured against the centres' own σ (the stripes are dim on black squares: σ ≈ 0.3 px)."""
+    for p, s in board_lines:
+        assert len(p) > 450
         keep = np.ones(len(p), bool)
         for _ in range(5):  # a weighted line, iterated with a 5-MAD gate
             w = 1.0 / s[keep]
@@ -75,3 +86,18 @@ def test_the_two_stripes_on_the_board_are_straight_to_their_sigma():
         assert keep.mean() > 0.8
         spread = 1.4826 * np.median(np.abs(residual[keep] / s[keep]))
         assert 0.6 <= spread <= 1.4
+
+
+@pytest.mark.xfail(strict=True, reason="RMS 3.0 and 0.5 px. Left laser: on the glint's rows (570-590) the "
+                   "stripe is a white core (green and blue 100-130 DN, red 100-150 DN) where red minus the "
+                   "mean of green and blue dips, while the glint's red-only flanks peak; points there sit "
+                   "3-16 px off. Right laser: this camera's red saturates at 180 DN (none above), so its "
+                   "6-px plateau is not seen as clipped and carries two peaks 2.8 px apart (with "
+                   "saturation_level=181-185: 0.66-0.73 px, green and blue read 0 beside the core)")
+def test_every_point_of_the_two_stripes_on_the_board_is_on_its_line(board_lines):
+    """Every rank <= 1 centre inside the board, not only those a robust gate keeps, lies on its
+    laser's straight line to ``STRAIGHT_RMS_PX``: a glint must be ranked below the stripe, or absent."""
+    for p, _ in board_lines:
+        a = np.c_[np.ones(len(p)), p[:, 1]]
+        residual = p[:, 0] - a @ np.linalg.lstsq(a, p[:, 0], rcond=None)[0]
+        assert np.sqrt(np.mean(residual**2)) <= STRAIGHT_RMS_PX
