@@ -9,7 +9,7 @@ from scanrig.io.ply import read_points_with_sigma
 from scanrig.surface.charts import estimate_normals
 from scanrig.surface.filter import filter_points
 from scanrig.surface.hampel import HampelConstants
-from scanrig.surface.sparse import local_quadratic_scores
+from scanrig.surface.sparse import QUADRIC_NEIGHBOURS, local_quadratic_scores
 
 from .conftest import FAST
 
@@ -42,7 +42,7 @@ def test_local_quadratics_keep_the_good_points_and_reject_far_outliers(seed):
     flagged = score > R
     assert np.mean(~flagged[~bad]) >= 0.98
     assert np.mean(flagged[bad]) >= 0.95
-    assert np.all(support >= 0) and np.all(support <= 20)
+    assert np.all(support >= 0) and np.all(support <= QUADRIC_NEIGHBOURS)
 
 
 def test_local_quadratic_of_a_clean_plane_is_exact():
