@@ -12,12 +12,15 @@ which carries the calibration's pose errors into the figure.
 The exact point–triangle distance (Ericson, *Real-Time Collision Detection*, §5.1.5) is evaluated
 only for triangles that can be the nearest: the mesh is first subdivided so that no edge exceeds
 ``max_edge_m``, the nearest centroids (KD-tree) give an upper bound ``d0`` of the distance, and
-every triangle whose centroid lies within ``d0 + max_edge_m`` is then checked. trimesh's own
-``proximity`` module needs the optional ``rtree`` package, which scanrig does not depend on.
+a triangle is checked only if the sphere about its centroid through its farthest corner comes
+within ``d0`` of the point (its centroid is then within ``d0`` plus the largest such radius, which
+bounds the KD-tree's search). trimesh's own ``proximity`` module needs the optional ``rtree``
+package, which scanrig does not depend on.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,8 +109,12 @@ class SurfaceDistance:
         v, f = trimesh.remesh.subdivide_to_size(np.asarray(self.vertices, np.float64),
                                                 np.asarray(self.faces, np.int64), self.max_edge_m)
         tri = v[f]
+        centroid = tri.mean(axis=1)
         object.__setattr__(self, "_tri", tri)
-        object.__setattr__(self, "_tree", cKDTree(tri.mean(axis=1)))
+        object.__setattr__(self, "_centroid", centroid)
+        # radius of the sphere about each centroid that holds its triangle (<= 2/3 of its longest edge)
+        object.__setattr__(self, "_reach", np.linalg.norm(tri - centroid[:, None], axis=2).max(axis=1))
+        object.__setattr__(self, "_tree", cKDTree(centroid))
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``(n, 3)`` points drawn uniformly over the surface's area, metres."""
@@ -135,11 +142,14 @@ class SurfaceDistance:
         near = near.reshape(len(p), k)
         rows = np.repeat(np.arange(len(p)), k)
         d0 = point_triangle_distance(p[rows], *tri[near.ravel()].transpose(1, 0, 2)).reshape(len(p), k).min(axis=1)
-        # A triangle within d0 of p has its centroid within d0 + (its circumradius <= max edge).
-        lists = self._tree.query_ball_point(p, d0 + self.max_edge_m, return_sorted=False)
-        counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-        cand = np.fromiter((i for x in lists for i in x), np.int64, int(counts.sum()))
+        # A triangle closer than d0 to p has a point x with |p - x| < d0 and |x - centroid| <= reach:
+        # its centroid lies within d0 + reach of p.
+        lists = self._tree.query_ball_point(p, d0 + self._reach.max(), return_sorted=False)
+        counts = np.fromiter(map(len, lists), np.int64, len(lists))
+        cand = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(counts.sum()))
         rows = np.repeat(np.arange(len(p)), counts)
+        can_beat = np.linalg.norm(p[rows] - self._centroid[cand], axis=1) - self._reach[cand] < d0[rows]
+        rows, cand = rows[can_beat], cand[can_beat]
         d = point_triangle_distance(p[rows], *tri[cand].transpose(1, 0, 2))
         best = np.full(len(p), np.inf)
         np.minimum.at(best, rows, d)
