@@ -380,16 +380,19 @@ def _laser_channel(image: np.ndarray, color: str) -> np.ndarray:
 
 def _signal(image: np.ndarray, color: str) -> np.ndarray:
     """Colour selection: the frame (grey), luma (colour frame, grey laser) or channel minus others."""
+    import cv2
+
     if image.ndim == 2:
         return image
     if color == "grey":
-        import cv2
-
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
     k = _CHANNEL[color]
     others = [c for c in range(3) if c != k]
-    f = image.astype(np.float32)
-    return f[:, :, k] - 0.5 * (f[:, :, others[0]] + f[:, :, others[1]])
+    # OpenCV on the split planes: one pass each, no float copy of the three channels (the values
+    # are half-integers, exact in float32 whatever the order of the sums)
+    planes = cv2.split(np.ascontiguousarray(image))
+    half_others = cv2.addWeighted(planes[others[0]], 0.5, planes[others[1]], 0.5, 0.0, dtype=cv2.CV_32F)
+    return cv2.subtract(planes[k], half_others, dtype=cv2.CV_32F)
 
 
 def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):

@@ -368,13 +368,12 @@ def _prominence_from_erosion(signal, line, pos, reach) -> tuple[np.ndarray, np.n
     base = np.ascontiguousarray(signal) if along_rows else signal.T
     box = cv2.boxFilter(base, cv2.CV_32F, (3, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
     lowest = cv2.erode(box, np.ones((1, r) if along_rows else (r, 1), np.uint8), anchor=(0, 0))  # of x .. x + r - 1
-
-    def at(image, p):
-        return image[line[easy], p] if along_rows else image[p, line[easy]]
-
+    step = 1 if along_rows else box.shape[1]  # from one position to the next along a line, flat
+    at = line[easy] * (box.shape[1] if along_rows else 1) + pos[easy] * step
     prominence, centre = np.empty(line.size, np.float32), np.empty(line.size, np.float32)
-    centre[easy] = at(box, pos[easy])
-    prominence[easy] = centre[easy] - np.maximum(at(lowest, pos[easy] - r), at(lowest, pos[easy] + 1))
+    centre[easy] = box.ravel().take(at)
+    lowest = lowest.ravel()
+    prominence[easy] = centre[easy] - np.maximum(lowest.take(at - r * step), lowest.take(at + step))
     rest = np.setdiff1d(np.arange(line.size), easy, assume_unique=True)
     if rest.size:
         n_levels = int(reach[rest].max()).bit_length()

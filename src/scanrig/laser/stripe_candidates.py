@@ -132,9 +132,12 @@ def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -
     does not show: a red laser must rise in red above both flanks by ``k_detect`` of that
     channel's noise. Clipped candidates are seen by their clipping.
     """
+    seen = run_half > 0
+    asked = np.flatnonzero(~seen)
     plane = colour.laser_plane if rows else colour.laser_plane.T
-    prominence_dn, _ = line_prominence(plane, line, pos, reach)
-    return (run_half > 0) | (prominence_dn >= k_detect * 3.0 * colour.laser_noise)
+    prominence_dn, _ = line_prominence(plane, line[asked], pos[asked], reach[asked])
+    seen[asked] = prominence_dn >= k_detect * 3.0 * colour.laser_noise
+    return seen
 
 
 #: Longest half clipped run followed from a seed, pixels (an over-exposed stripe with its halo
