@@ -63,3 +63,26 @@ def test_bars_on_a_terminal_end_complete_with_their_counts():
         progress("fitting", 5, None)
     text = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", screen.getvalue())
     assert "4/4" in text and "5/5" in text and "None" not in text
+
+
+def test_evaluate_into_a_log_prints_each_step(tmp_path, capsys):
+    """``scanrig evaluate`` with stdout not a terminal: a start and an end line for each step, then
+    the figures."""
+    import numpy as np
+    import trimesh
+
+    from scanrig.cli.main import main
+    from scanrig.reconstruct.points import PointCloud, write_points
+
+    (tmp_path / "truth" / "meshes").mkdir(parents=True)
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(tmp_path / "truth" / "meshes" / "box.ply")
+    p = np.array([[0.0, 0.0, 0.1005], [0.0, 0.0, -0.1002], [0.1, 0.0, 0.0]])
+    write_points(tmp_path / "points.ply", PointCloud(p, np.full(3, 1e-4), [2] * 3, [0.1] * 3, range(3), [0] * 3))
+    assert main(["evaluate", str(tmp_path / "points.ply")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    steps = [f"loading the true surface ({tmp_path / 'truth'})", f"measuring {tmp_path / 'points.ply'} and its coverage",
+             "writing the histogram"]
+    for k, step in enumerate(steps):
+        assert out[2 * k] == f"{step}: started"
+        assert re.fullmatch(rf"{re.escape(step)}: done in \d+\.\d s", out[2 * k + 1])
+    assert out[6].startswith("3 points: RMS ")

@@ -29,23 +29,32 @@ def command(
     When POINTS is a session's points.ply and the session has the filter's surface.ply, the same
     figures follow for the points the filter kept, with the number it removed. Then the coverage:
     the share of the true surface in the cloud's bounding box within 5 mm of a point. These are
-    the figures scanrig demo prints and report.html shows.
+    the figures scanrig demo prints and report.html shows. Each step (loading the true meshes,
+    measuring, writing the histogram) shows a progress bar, or a line when it starts and ends when
+    stdout is not a terminal.
 
     Example: scanrig evaluate demo_session
     """
     import math
 
+    from scanrig.cli.progress import stage_progress
     from scanrig.io.session import session_file
-    from scanrig.reconstruct.evaluate import save_histogram, session_accuracy
+    from scanrig.reconstruct.evaluate import load_truth_surface, save_histogram, session_accuracy
 
     points = session_file(points, "points.ply", "scanrig reconstruct")
     truth = truth if truth is not None else points.parent / "truth"
     if rig is not None:
         rig = session_file(rig, "rig.toml", "scanrig calibrate")
     surface = points.with_name("surface.ply") if points.name == "points.ply" else None
-    accuracy = session_accuracy(points, truth, rig_path=rig, surface_path=surface, outlier_m=outlier_mm * 1e-3)
     histogram = histogram or points.with_name(f"{points.stem}_distances.png")
-    save_histogram(accuracy.distance_m, histogram)
+    with stage_progress() as progress:
+        progress(f"loading the true surface ({truth})", 0, None)
+        true_surface = load_truth_surface(truth)
+        progress(f"measuring {points} and its coverage", 0, None)
+        accuracy = session_accuracy(points, truth, rig_path=rig, surface_path=surface, outlier_m=outlier_mm * 1e-3,
+                                    truth=true_surface)
+        progress("writing the histogram", 0, None)
+        save_histogram(accuracy.distance_m, histogram)
     first, *rest = accuracy.lines()
     sigma = accuracy.median_sigma_m
     sigma_text = "no predicted sigma in the file" if math.isnan(sigma) else f"median predicted sigma {sigma * 1e3:.4f} mm"
