@@ -128,9 +128,12 @@ def test_direction_map_without_candidates_scans_rows():
 
 
 @pytest.mark.parametrize("along", ["2d", "rows", "columns"])
-def test_candidates_match_a_plain_search(along):
+@pytest.mark.parametrize("search", ["patches", "frame"])
+def test_candidates_match_a_plain_search(along, search, monkeypatch):
     """Every local maximum of the 3 × 3 box sum in the flagged blocks and their neighbours that
-    passes the detection test, found by a full-frame search."""
+    passes the detection test, found by a full-frame search; the same from the patches around the
+    flagged blocks and from the whole-frame filters."""
+    monkeypatch.setattr(peaks, "_WHOLE_FRAME_SHARE", 2.0 if search == "patches" else 0.0)
     rng = np.random.default_rng(16)
     shape = (123, 157)
     img = stripe_image(shape, lambda lines: 40.3 + 0.4 * lines, rng, 120.0, 1.5, 10.0, 2.0)

@@ -187,13 +187,34 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
     import cv2
 
     sig = li.signal
-    h, w = sig.shape
     if excess is None:
         excess = prescan(li, k_seed)
     flagged = (excess > 0).view(np.uint8)
     if not flagged.any():
         return _empty()
     flagged = cv2.dilate(flagged, np.ones((3, 3), np.uint8))
+    if np.count_nonzero(flagged) >= _WHOLE_FRAME_SHARE * flagged.size:
+        v, u, box = _maxima_of_frame(sig, flagged, along)
+    else:
+        v, u, box = _maxima_in_patches(sig, flagged, along)
+    score = (box - 9.0 * li.background_at(u, v)) / (3.0 * li.noise_at(u, v))
+    keep = score >= k_detect
+    order = np.lexsort((u[keep], v[keep]))
+    return Candidates(u[keep][order], v[keep][order], score[keep][order])
+
+
+#: Share of the blocks flagged (with their neighbours) from which the maxima are searched with
+#: whole-frame filters rather than in patches around the flagged blocks: they cost about the same
+#: there (measured on 1920 x 1080 colour and 1280 x 1024 grey frames: 7-17 %).
+_WHOLE_FRAME_SHARE = 0.15
+
+
+def _maxima_in_patches(sig: np.ndarray, flagged: np.ndarray, along: str):
+    """Maxima of the 3 × 3 box sum (see :func:`find_candidates`) in the flagged blocks, searched in
+    ``_PATCH``-pixel patches around them: rows ``v``, columns ``u`` and the box sums there."""
+    import cv2
+
+    h, w = sig.shape
     # 0/1 bytes seen as bool: NumPy's nonzero is many times faster on bool than on uint8
     bi, bj = np.divmod(np.flatnonzero(flagged.view(bool)), flagged.shape[1])
     n = bi.size
@@ -220,10 +241,30 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
     u = bj[k] * BLOCK + du
     inside = (v < h) & (u < w)
     k, dv, du, v, u = k[inside], dv[inside], du[inside], v[inside], u[inside]
-    score = (core[dv, du, k] - 9.0 * li.background_at(u, v)) / (3.0 * li.noise_at(u, v))
-    keep = score >= k_detect
-    order = np.lexsort((u[keep], v[keep]))
-    return Candidates(u[keep][order], v[keep][order], score[keep][order])
+    return v, u, core[dv, du, k]
+
+
+def _maxima_of_frame(sig: np.ndarray, flagged: np.ndarray, along: str):
+    """:func:`_maxima_in_patches` from whole-frame OpenCV filters, for frames flagged almost
+    everywhere (texture in a colour frame): the box sums of the frame padded by its edge pixels,
+    compared with their shifted views."""
+    import cv2
+
+    h, w = sig.shape
+    padded = cv2.copyMakeBorder(np.ascontiguousarray(sig), 2, 2, 2, 2, cv2.BORDER_REPLICATE)
+    box = cv2.boxFilter(padded, cv2.CV_32F, (3, 3), normalize=False)[1:-1, 1:-1]  # rows, columns -1 .. H, W
+    core = box[1:-1, 1:-1]
+    if along == "2d":
+        shifts = [(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du]
+    else:
+        shifts = [(0, -1), (0, 1)] if along == "rows" else [(-1, 0), (1, 0)]
+    is_max = np.ascontiguousarray(_upsample(flagged, BLOCK, (h, w)))  # in a flagged block
+    for dv, du in shifts:
+        # along a scan line the later neighbour must be strictly lower (ties go to the first)
+        test = cv2.CMP_GT if along != "2d" and dv + du > 0 else cv2.CMP_GE
+        cv2.bitwise_and(is_max, cv2.compare(core, box[1 + dv : 1 + dv + h, 1 + du : 1 + du + w], test), dst=is_max)
+    v, u = np.divmod(np.flatnonzero(is_max.view(bool)), w)
+    return v, u, core[v, u]
 
 
 def _patches(sig: np.ndarray, bi: np.ndarray, bj: np.ndarray):
