@@ -2,10 +2,14 @@
 
 Unknowns: per camera its free intrinsic parameters and ``cam_from_world`` (rvec, tvec); per
 shot ``world_from_target`` (rvec, tvec), except the reference shot whose target frame *is* the
-world (the gauge). The target geometry is known. Residual of observation i (camera c, shot s,
+world (the gauge). The target geometry is known, except that a target declared flexible
+(``flex = true``, a planar board) adds its two flex terms ``c = (c_x, c_y)`` (metres,
+:func:`scanrig.targets.target.flex_shape`), last in the parameter vector and shared by every
+shot: the point then sits at ``p + D_p c``, ``D_p`` its (3, 2)
+:meth:`~scanrig.targets.Target.flex_directions`. Residual of observation i (camera c, shot s,
 target point p, pixel q, weight w)::
 
-    r_i = sqrt(w_i * irls_i) * (project_c(world_from_target_s · p) - q)       (pixels)
+    r_i = sqrt(w_i * irls_i) * (project_c(world_from_target_s · (p + D_p c)) - q)       (pixels)
 
 The Jacobian is assembled from the camera model's analytic derivatives
 (:meth:`Camera.project_with_jacobians`) into a scipy.sparse matrix.
@@ -69,6 +73,8 @@ class Layout:
         (the reference shot) or not solved (see ``shot_active``).
     shot_active : ndarray of bool
     size : int
+    flex : slice or None
+        The target's two flex terms (last in ``x``); None for a rigid target.
     """
 
     intrinsics: list[np.ndarray]
@@ -76,10 +82,12 @@ class Layout:
     shot_pose: list[slice | None]
     shot_active: np.ndarray
     size: int
+    flex: slice | None = None
 
     @classmethod
     def build(cls, cameras: list[Camera], shot_active: np.ndarray, reference_shot: int,
-              fixed_params: dict[str, tuple[str, ...]], fix_poses: tuple[str, ...] = ()) -> Layout:
+              fixed_params: dict[str, tuple[str, ...]], fix_poses: tuple[str, ...] = (),
+              flex: bool = False) -> Layout:
         n = 0
         intrinsics = []
         for cam in cameras:
@@ -104,15 +112,41 @@ class Layout:
                 n += 6
             else:
                 shot_pose.append(None)
-        return cls(intrinsics, camera_pose, shot_pose, np.asarray(shot_active, dtype=bool), n)
+        flex_cols = slice(n, n + 2) if flex else None
+        n += 2 if flex else 0
+        return cls(intrinsics, camera_pose, shot_pose, np.asarray(shot_active, dtype=bool), n, flex_cols)
 
 
 @dataclass
 class State:
-    """Cameras and target poses at one parameter vector."""
+    """Cameras, target poses and (for a flexible target) its flex terms at one parameter vector.
+
+    ``flex_m``: (2,) ``(c_x, c_y)`` of :func:`scanrig.targets.target.flex_shape`, metres; None
+    for a rigid target.
+    """
 
     cameras: list[Camera]
     world_from_target: list[RigidTransform | None]
+    flex_m: np.ndarray | None = None
+
+
+def bend(p_target: np.ndarray, flex_dir: np.ndarray | None, flex_m: np.ndarray | None) -> np.ndarray:
+    """Target points bent by the flex terms.
+
+    Parameters
+    ----------
+    p_target : ndarray of shape (N, 3)
+        Flat target points, target frame, metres.
+    flex_dir : ndarray of shape (N, 3, 2) or None
+        Their :meth:`~scanrig.targets.Target.flex_directions`.
+    flex_m : ndarray of shape (2,) or None
+        ``(c_x, c_y)``, metres; None for a rigid target (``p_target`` is returned as is).
+
+    Returns
+    -------
+    ndarray of shape (N, 3)
+    """
+    return p_target if flex_m is None else p_target + flex_dir @ flex_m
 
 
 def pack(state: State, layout: Layout) -> np.ndarray:
@@ -126,6 +160,8 @@ def pack(state: State, layout: Layout) -> np.ndarray:
     for wt, pose in zip(state.world_from_target, layout.shot_pose):
         if pose is not None:
             x[pose] = np.concatenate([wt.rvec, wt.t])
+    if layout.flex is not None:
+        x[layout.flex] = state.flex_m
     return x
 
 
@@ -133,7 +169,8 @@ def unpack(x: np.ndarray, layout: Layout, template: State) -> State:
     """State at parameter vector ``x``; fixed values come from ``template``."""
     poses = [wt if pose is None else RigidTransform.from_rvec_tvec(x[pose][:3], x[pose][3:])
              for wt, pose in zip(template.world_from_target, layout.shot_pose)]
-    return State(unpack_cameras(x, layout, template.cameras), poses)
+    flex_m = None if layout.flex is None else x[layout.flex].copy()
+    return State(unpack_cameras(x, layout, template.cameras), poses, flex_m)
 
 
 def unpack_cameras(x: np.ndarray, layout: Layout, cameras: list[Camera]) -> list[Camera]:
@@ -255,12 +292,16 @@ class Problem:
         Prior rows appended below the ``2N`` pixel rows.
     prior_scale_px : float
         Pixel residual sigma the prior rows are scaled with.
+    flex_dir : ndarray of shape (N, 3, 2), optional
+        Each point's :meth:`~scanrig.targets.Target.flex_directions`; needed when
+        ``layout.flex`` is set.
     """
 
     def __init__(self, obs: Observations, p_target: np.ndarray, layout: Layout, template: State,
-                 sqrt_w: np.ndarray, prior: PriorRows | None = None, prior_scale_px: float = 1.0):
+                 sqrt_w: np.ndarray, prior: PriorRows | None = None, prior_scale_px: float = 1.0,
+                 flex_dir: np.ndarray | None = None):
         self.obs, self.p_target, self.layout, self.template, self.sqrt_w = obs, p_target, layout, template, sqrt_w
-        self.prior, self.prior_scale_px = prior, prior_scale_px
+        self.prior, self.prior_scale_px, self.flex_dir = prior, prior_scale_px, flex_dir
         n_shots = len(layout.shot_pose)
         self._shot_rvec0 = np.zeros((n_shots, 3))
         self._shot_t0 = np.zeros((n_shots, 3))
@@ -287,8 +328,8 @@ class Problem:
         self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=2 * len(obs)))])
 
     def _column_blocks(self, c: int, sel: np.ndarray):
-        """Per block kind (intrinsics, camera pose, shot pose), the observation rows (k,) and their
-        parameter columns (k, m) among camera c's observations ``sel``; same order as the values."""
+        """Per block kind (intrinsics, camera pose, shot pose, flex), the observation rows (k,) and
+        their parameter columns (k, m) among camera c's observations ``sel``; same order as the values."""
         intr = self.layout.intrinsics[c]
         blocks = [(sel, np.broadcast_to(intr[intr >= 0], (len(sel), int(np.sum(intr >= 0)))))]
         if self.layout.camera_pose[c] is not None:
@@ -297,6 +338,9 @@ class Problem:
         start = self._shot_cols[self.obs.shot[sel]]
         has = start >= 0
         blocks.append((sel[has], start[has, None] + np.arange(6)[None, :]))
+        if self.layout.flex is not None:
+            start = self.layout.flex.start
+            blocks.append((sel, np.broadcast_to(np.arange(start, start + 2), (len(sel), 2))))
         return blocks
 
     def state(self, x: np.ndarray) -> State:
@@ -318,13 +362,17 @@ class Problem:
         rvec, t = self._shot_params(x)
         R, M = rotation_jacobians(rvec)
         Rs = R[obs.shot]
-        p_world = np.einsum("nij,nj->ni", Rs, self.p_target) + t[obs.shot]
+        flex_m = None if layout.flex is None else x[layout.flex]
+        p_target = bend(self.p_target, self.flex_dir, flex_m)
+        p_world = np.einsum("nij,nj->ni", Rs, p_target) + t[obs.shot]
         r = np.empty((len(obs), 2))
         if not jacobian:
             for cam, sel in zip(cameras, self._camera_rows):
                 r[sel] = cam.project(p_world[sel]) - obs.uv[sel]
             return self._with_prior(x, (r * self.sqrt_w[:, None]).ravel())
-        J_rot = -(Rs @ self._skew_p @ M[obs.shot])      # d p_world / d shot rvec, (N, 3, 3)
+        skew_p = self._skew_p if flex_m is None else skew(p_target)
+        J_rot = -(Rs @ skew_p @ M[obs.shot])      # d p_world / d shot rvec, (N, 3, 3)
+        J_flex = None if flex_m is None else Rs @ self.flex_dir  # d p_world / d flex, (N, 3, 2)
         values = []
         for c, (cam, sel) in enumerate(zip(cameras, self._camera_rows)):
             if len(sel) == 0:
@@ -339,6 +387,8 @@ class Problem:
             has = self._shot_cols[obs.shot[sel]] >= 0
             J_shot = np.concatenate([J_point[has] @ J_rot[sel[has]], J_point[has]], axis=2)
             values.append((J_shot * w[has]).ravel())
+            if J_flex is not None:
+                values.append((J_point @ J_flex[sel] * w).ravel())
         data = np.concatenate(values)[self._perm]
         J = scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=(2 * len(obs), layout.size))
         if self.prior is not None:
@@ -437,9 +487,13 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
         If the solve produces non-finite values.
     """
     shot_active = np.array([p is not None for p in world_from_target])
-    layout = Layout.build(cameras, shot_active, reference_shot, fixed_params or {})
-    template = State(list(cameras), list(world_from_target))
+    layout = Layout.build(cameras, shot_active, reference_shot, fixed_params or {}, flex=target.flex)
+    template = State(list(cameras), list(world_from_target), np.zeros(2) if target.flex else None)
     p_target, known = target.lookup(obs.point_id)
+    flex_dir = None
+    if target.flex:
+        flex_dir = np.zeros((len(obs), 3, 2))
+        flex_dir[known] = target.flex_directions(obs.point_id[known])
     usable = known & shot_active[obs.shot]
     x = pack(template, layout)
     prior = PriorRows.build(cameras, layout, priors or {})
@@ -453,7 +507,7 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
         sub = obs.subset(rows)
         _check_redundancy(2 * len(sub), layout.size)
         problem = Problem(sub, p_target[rows], layout, template, np.sqrt(sub.weight * irls_weight),
-                          prior, prior_scale_px)
+                          prior, prior_scale_px, _rows(flex_dir, rows))
         return levenberg_marquardt(problem, x, max_iterations, cost_rtol)
 
     if robust:
@@ -462,14 +516,14 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
             for _ in range(IRLS_ROUNDS):
                 res = solve(x, inliers, irls, IRLS_COST_RTOL)
                 x, total_iterations = res.x, total_iterations + res.iterations
-                norm = _residual_norms(x, layout, template, obs, p_target, inliers)
+                norm = _residual_norms(x, layout, template, obs, p_target, flex_dir, inliers)
                 scale = np.median(norm) / RAYLEIGH_MEDIAN
                 new_irls = np.minimum(1.0, HUBER_SIGMAS * scale / np.maximum(norm, 1e-300))
                 if np.allclose(new_irls, irls, atol=IRLS_WEIGHT_ATOL):
                     break
                 irls = new_irls
             norm_all = np.full(len(obs), np.nan)
-            norm_all[usable] = _residual_norms(x, layout, template, obs, p_target, usable)
+            norm_all[usable] = _residual_norms(x, layout, template, obs, p_target, flex_dir, usable)
             scale = np.median(norm_all[inliers]) / RAYLEIGH_MEDIAN
             prior_scale_px = float(scale)
             bad = inliers & (norm_all > OUTLIER_SIGMAS * scale)
@@ -486,7 +540,8 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
     for _ in range(1 if prior is None else 2):
         res = solve(x, inliers, np.ones(inliers.sum()))
         x, total_iterations = res.x, total_iterations + res.iterations
-        r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight), prior, prior_scale_px)(x, True)
+        r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight), prior, prior_scale_px,
+                       _rows(flex_dir, inliers))(x, True)
         if not np.all(np.isfinite(r)):
             raise EstimationError("bundle adjustment diverged (points behind a camera); check the target "
                                   "definition and the image order of every camera")
@@ -494,16 +549,22 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
         prior_scale_px = sigma
     state = unpack(x, layout, template)
     residuals = np.full((len(obs), 2), np.nan)
-    residuals[usable] = project_observations(state, obs.subset(usable), p_target[usable]) - obs.uv[usable]
+    p_usable = bend(p_target[usable], _rows(flex_dir, usable), state.flex_m)
+    residuals[usable] = project_observations(state, obs.subset(usable), p_usable) - obs.uv[usable]
     return BundleResult(state, layout, x, obs, inliers, residuals, sigma, outliers, total_iterations, J)
 
 
-def _residual_norms(x, layout, template, obs, p_target, rows) -> np.ndarray:
+def _residual_norms(x, layout, template, obs, p_target, flex_dir, rows) -> np.ndarray:
     """Weighted residual norms (pixels × sqrt(weight)) of the selected observations."""
     state = unpack(x, layout, template)
     sub = obs.subset(rows)
-    q = project_observations(state, sub, p_target[rows])
+    q = project_observations(state, sub, bend(p_target[rows], _rows(flex_dir, rows), state.flex_m))
     return np.linalg.norm(q - sub.uv, axis=1) * np.sqrt(sub.weight)
+
+
+def _rows(flex_dir: np.ndarray | None, rows) -> np.ndarray | None:
+    """The selected rows of ``flex_dir`` (None for a rigid target)."""
+    return None if flex_dir is None else flex_dir[rows]
 
 
 def _check_redundancy(n_residuals: int, n_params: int) -> None:

@@ -55,7 +55,8 @@ MIN_COMMON_POINTS = 4
 #: What a ratio above :data:`RATIO_WARN` may come from and what to do, for the report.
 CAUSES = ("systematic corner error (detector, blur, a target whose printed size or flatness differs "
           "from target.toml): check the residual plots for patterns",
-          "board flex (a foam or card board bends by ~1 mm): use a rigid board",
+          "board flex (a foam or card board bends by ~1 mm): use a rigid board, or set flex = true in "
+          "target.toml (planar boards) to estimate the bend",
           "too few or too similar views: add views at other tilts, distances and image positions",
           "an over-parameterised model (distortion terms the views cannot pin down): use a simpler "
           "model (--model opencv4)")

@@ -2,7 +2,8 @@
 
 ``summary.json`` (docs/file-formats.md) carries per camera its model, parameters and their σ,
 RMS, corners used and rejected, projection σ and cross-validation, and the warnings, each a
-single line naming its camera and cause, exactly as printed.
+single line naming its camera and cause, exactly as printed; for a flexible target
+(``flex = true``) also the board's two flex terms and their σ.
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ def format_summary(result) -> str:
         if poor:
             lines.append("  poorly determined (1 sigma moves the image by): "
                          + ", ".join(f"{p} {px:.2g} px" for p, _, px in poor))
+    if b.state.flex_m is not None:
+        (cx, cy), (sx, sy) = b.state.flex_m * 1000.0, unc.flex_std_m * 1000.0
+        lines += ["", f"board flex (sag at the centre): along x {cx:.4f} ± {sx:.4f} mm, "
+                      f"along y {cy:.4f} ± {sy:.4f} mm"]
     cv = result.cross_validation
     lines.append("")
     if cv is None:
@@ -138,7 +143,7 @@ def summary_dict(result) -> dict:
                 "measured_px": check.measured_px, "predicted_px": check.predicted_px, "ratio": check.ratio,
                 "dof": check.dof, "max_px": check.max_px, "n_points": check.n_points},
         })
-    return {
+    out = {
         "format_version": SUMMARY_FORMAT_VERSION,
         "target_kind": result.target.kind,
         "n_shots": len(obs.shot_names),
@@ -151,6 +156,10 @@ def summary_dict(result) -> dict:
         "cameras": cameras,
         "warnings": list(result.warnings),
     }
+    if b.state.flex_m is not None:
+        out["board_flex_m"] = [float(v) for v in b.state.flex_m]
+        out["board_flex_std_m"] = [float(v) for v in unc.flex_std_m]
+    return out
 
 
 def write_summary_json(result, path: str | Path) -> None:

@@ -11,6 +11,9 @@ a ChArUco face of 25 mm squares rendered at 1.25 m (28 px squares; blur 0.8 px, 
 gives 169 of 169 corners face-on, 127 at 45 deg (20 px foreshortened), 28 at 60 deg (14 px)
 and none at 70 deg (10 px); at 0.9 m, 138 at 60 deg (19 px) and 61 at 70 deg (13 px); at
 0.6 m, 130 at 70 deg (20 px).
+
+Optionally (``flex_m``) every board is bent by the two flex terms of
+:func:`scanrig.targets.target.flex_shape`, as a foam or card board bends.
 """
 
 from __future__ import annotations
@@ -152,12 +155,17 @@ def _board_pitch_m(board) -> float:
     return float(getattr(board, "square_m", None) or board.spacing_m)
 
 
-def _project_visible(cam: Camera, target: Target, pose: RigidTransform, min_square_px: float | None = None):
-    """Visibility mask (see the module docstring) and pixels of every target point in ``cam``."""
+def _project_visible(cam: Camera, target: Target, pose: RigidTransform, min_square_px: float | None = None,
+                     flex_m=None):
+    """Visibility mask (see the module docstring) and pixels of every target point in ``cam``,
+    the boards bent by ``flex_m`` (``(c_x, c_y)``, metres; None: flat)."""
     normals_target = np.concatenate([np.tile(b.target_from_board.R[:, 2], (len(b.point_ids), 1))
                                      for b in target.boards])
     cos_max = np.cos(np.deg2rad(MAX_VIEW_ANGLE_DEG))
-    p_world = pose.apply(target.points_target)
+    p_target = target.points_target
+    if flex_m is not None:
+        p_target = p_target + target.flex_directions(target.point_ids) @ np.asarray(flex_m, dtype=np.float64)
+    p_world = pose.apply(p_target)
     inward_world = normals_target @ pose.R.T          # board z (into the board), world frame
     q = cam.project(p_world)
     sight = p_world - cam.center_world
@@ -175,18 +183,20 @@ def _project_visible(cam: Camera, target: Target, pose: RigidTransform, min_squa
 
 
 def observe(cameras: list[Camera], target: Target, world_from_target: list[RigidTransform],
-            sigma_px: float, rng: np.random.Generator, min_square_px: float | None = None) -> Observations:
+            sigma_px: float, rng: np.random.Generator, min_square_px: float | None = None,
+            flex_m=None) -> Observations:
     """Noisy observations of every visible target point (see the module docstring).
 
     ``min_square_px``: observe a point only where its board's squares (circle spacing) image at
     least this many pixels along their foreshortened direction (None: no size limit);
-    :data:`DETECTABLE_SQUARE_PX` matches the rendered ChArUco detections.
+    :data:`DETECTABLE_SQUARE_PX` matches the rendered ChArUco detections. ``flex_m``: (2,)
+    flex terms ``(c_x, c_y)`` (metres) bending every board (None: flat boards).
     """
     parts = []
     shot_names = [f"{s:03d}" for s in range(len(world_from_target))]
     for s, pose in enumerate(world_from_target):
         for cam in cameras:
-            keep, q = _project_visible(cam, target, pose, min_square_px)
+            keep, q = _project_visible(cam, target, pose, min_square_px, flex_m)
             if np.count_nonzero(keep) == 0:
                 continue
             noisy = q[keep] + rng.normal(scale=sigma_px, size=(np.count_nonzero(keep), 2))
@@ -197,19 +207,19 @@ def observe(cameras: list[Camera], target: Target, world_from_target: list[Rigid
 
 def simulate(cameras: list[Camera], target: Target, n_shots: int, sigma_px: float,
              rng: np.random.Generator, cover: bool = False, min_square_px: float | None = None,
-             **pose_options) -> SyntheticCalibration:
+             flex_m=None, **pose_options) -> SyntheticCalibration:
     """Random target poses (shot 0 = world) and noisy observations of them.
 
     ``cover=False``: poses near the origin (:func:`random_target_poses`); ``cover=True``: poses
     spread over the cameras' fields of view and depth (:func:`covering_target_poses`, which
     then also gets ``min_square_px``). ``pose_options`` go to the chosen function;
-    ``min_square_px`` to :func:`observe`.
+    ``min_square_px`` and ``flex_m`` (bent boards) to :func:`observe`.
     """
     if cover:
         poses = covering_target_poses(cameras, target, n_shots, rng, min_square_px=min_square_px, **pose_options)
     else:
         poses = random_target_poses(n_shots, rng, **pose_options)
-    obs = observe(cameras, target, poses, sigma_px, rng, min_square_px)
+    obs = observe(cameras, target, poses, sigma_px, rng, min_square_px, flex_m)
     return SyntheticCalibration(cameras, poses, obs, sigma_px)
 
 

@@ -57,6 +57,9 @@ class Uncertainty:
     warnings : list of str
         One line per camera whose distortion the data leave open, and one per unobservable
         direction.
+    flex_std_m : ndarray of shape (2,) or None
+        Standard deviation of the target's flex terms ``(c_x, c_y)``, metres; None for a rigid
+        target.
     """
 
     covariance: np.ndarray
@@ -66,6 +69,7 @@ class Uncertainty:
     rotation_std_deg: dict
     poorly_determined: dict
     warnings: list
+    flex_std_m: np.ndarray | None = None
 
 
 def covariance(result: BundleResult) -> Uncertainty:
@@ -115,7 +119,8 @@ def covariance(result: BundleResult) -> Uncertainty:
         center_std[cam.name] = np.sqrt(np.maximum(np.diag(J_center @ C @ J_center.T), 0.0))
         rot_cov[cam.name] = rotation_error_covariance(cam.cam_from_world.rvec, C[:3, :3])
         rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(rot_cov[cam.name]) / 3.0)))
-    return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, poor, warnings)
+    flex_std = None if layout.flex is None else np.sqrt(np.maximum(np.diag(cov)[layout.flex], 0.0))
+    return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, poor, warnings, flex_std)
 
 
 def distortion_warning(camera: str, poorly_determined: list) -> list[str]:
@@ -163,6 +168,8 @@ def _parameter_names(result: BundleResult) -> list[str]:
         if pose is not None:
             for k, label in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
                 names[pose.start + k] = f"shot {result.obs.shot_names[s]}.{label}"
+    if result.layout.flex is not None:
+        names[result.layout.flex] = ["target.flex_x", "target.flex_y"]
     return names
 
 

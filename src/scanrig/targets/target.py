@@ -3,6 +3,9 @@
 The target frame is the frame the calibration's world is anchored to (world = the target frame
 at its first shot). Planar targets have one board whose frame is the target frame; the cube
 has one ChArUco board per face and its target frame at the cube's centre, axes along its edges.
+
+A planar target may be declared flexible (``flex=True``): its board then bends out of its plane
+by two parabolic terms that the calibration estimates (:func:`flex_shape`).
 """
 
 from __future__ import annotations
@@ -36,15 +39,24 @@ class Target:
         Boards with disjoint point ids, each posed in the target frame.
     spec : dict
         The ``target.toml`` fields this target was built from (written back by ``save_target``).
+    flex : bool
+        The board bends (:func:`flex_shape`); calibration then estimates two flex terms. Only
+        for a planar target: the boards of a multi-board target are rigidly joined.
     """
 
     kind: str
     boards: tuple[Board, ...]
     spec: dict = field(default_factory=dict, compare=False)
+    flex: bool = False
 
     def __post_init__(self):
         if self.kind not in TARGET_KINDS:
             raise InputError(f"target kind must be one of {list(TARGET_KINDS)}, got {self.kind!r}")
+        if not isinstance(self.flex, bool):
+            raise InputError(f"flex must be true or false, got {self.flex!r}")
+        if self.flex and len(self.boards) != 1:
+            raise InputError(f"flex = true needs a planar target (one board); a {self.kind} target has "
+                             f"{len(self.boards)} rigidly joined boards, whose bending is not modelled")
         ids = np.concatenate([b.point_ids for b in self.boards])
         if len(np.unique(ids)) != len(ids):
             raise InputError("target boards must have disjoint point ids (set id_offset)")
@@ -104,25 +116,73 @@ class Target:
         local = np.concatenate([b.points_board for b in self.boards])
         return local[index]
 
+    def flex_directions(self, point_ids) -> np.ndarray:
+        """(N, 3, 2) displacement of each point (ids must be known) in the target frame per metre
+        of the two flex terms ``(c_x, c_y)`` of :func:`flex_shape`: along its board's z axis."""
+        index, _ = self._positions(point_ids)
+        local = self.points_on_board(point_ids)
+        board = self.point_board_index[index]
+        shape = np.empty((len(local), 2))
+        normal = np.empty((len(local), 3))
+        for k, b in enumerate(self.boards):
+            rows = board == k
+            shape[rows] = flex_shape(b, local[rows, :2])
+            normal[rows] = b.target_from_board.R[:, 2]
+        return normal[:, :, None] * shape[:, None, :]
+
     @property
     def is_planar(self) -> bool:
         """True when every point lies in one plane (a single board)."""
         return len(self.boards) == 1
 
 
-def chessboard(inner_corners=(9, 6), square_m=0.025, margin_m=None) -> Target:
-    """A planar chessboard target; ``margin_m`` defaults to one square."""
+def flex_shape(board: Board, xy_board) -> np.ndarray:
+    """Out-of-plane height of a bent board per metre of each of its two flex terms.
+
+    The bent board's surface is ``z = c_x (1 - u²) + c_y (1 - v²)`` in the board frame (z into
+    the board, away from a viewer reading the print), with ``u = (x - x0) / wx`` and
+    ``v = (y - y0) / wy``: ``(x0, y0)`` the centre and ``(wx, wy)`` the half-widths of the
+    board's grid of target points. ``c_x`` is the sag along x: the height of the grid's centre
+    above the line joining the midpoints of its left and right edges (``c_y`` likewise along y);
+    the grid's centre is at ``c_x + c_y`` and its four outer corners at 0. Points keep their
+    printed (x, y): a 1 mm bend over 0.3 m shortens the board by 9 µm, which is left out.
+
+    Parameters
+    ----------
+    board : Board
+    xy_board : array_like of shape (N, 2)
+        Board coordinates (x, y), metres.
+
+    Returns
+    -------
+    ndarray of shape (N, 2)
+        ``(1 - u², 1 - v²)``, dimensionless: the height is this times ``(c_x, c_y)``.
+    """
+    grid = board.points_local
+    lo, hi = grid.min(axis=0), grid.max(axis=0)
+    uv = (np.asarray(xy_board, dtype=np.float64) - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
+    return 1.0 - uv ** 2
+
+
+def _flex_spec(spec: dict, flex: bool) -> dict:
+    """``spec`` with ``flex = true`` added when set (a rigid target's file stays as it was)."""
+    return {**spec, "flex": True} if flex else spec
+
+
+def chessboard(inner_corners=(9, 6), square_m=0.025, margin_m=None, flex=False) -> Target:
+    """A planar chessboard target; ``margin_m`` defaults to one square; ``flex`` see :class:`Target`."""
     check_length(square_m, "square_m")
     margin = square_m if margin_m is None else margin_m
     inner_corners = _pair(inner_corners, "inner_corners")
     board = ChessBoard("board", inner_corners=inner_corners, square_m=square_m, margin_m=margin)
     spec = {"kind": "chessboard", "inner_corners": list(inner_corners), "square_m": square_m, "margin_m": margin}
-    return Target("chessboard", (board,), spec)
+    return Target("chessboard", (board,), _flex_spec(spec, flex), flex)
 
 
 def charuco(squares=(7, 5), square_m=0.04, marker_m=0.03, dictionary="DICT_5X5_1000",
-            first_marker_id=0, margin_m=None) -> Target:
-    """A planar ChArUco target (OpenCV layout); ``margin_m`` defaults to half a square."""
+            first_marker_id=0, margin_m=None, flex=False) -> Target:
+    """A planar ChArUco target (OpenCV layout); ``margin_m`` defaults to half a square; ``flex``
+    see :class:`Target`."""
     check_length(square_m, "square_m")
     margin = 0.5 * square_m if margin_m is None else margin_m
     squares = _pair(squares, "squares")
@@ -130,11 +190,13 @@ def charuco(squares=(7, 5), square_m=0.04, marker_m=0.03, dictionary="DICT_5X5_1
                          dictionary=dictionary, first_marker_id=first_marker_id, margin_m=margin)
     spec = {"kind": "charuco", "squares": list(squares), "square_m": square_m, "marker_m": marker_m,
             "dictionary": dictionary, "first_marker_id": first_marker_id, "margin_m": margin}
-    return Target("charuco", (board,), spec)
+    return Target("charuco", (board,), _flex_spec(spec, flex), flex)
 
 
-def circle_grid(grid=(4, 11), spacing_m=0.02, diameter_m=None, asymmetric=False, margin_m=None) -> Target:
-    """A planar circle-grid target (OpenCV layout); diameter defaults to half the neighbour distance."""
+def circle_grid(grid=(4, 11), spacing_m=0.02, diameter_m=None, asymmetric=False, margin_m=None,
+                flex=False) -> Target:
+    """A planar circle-grid target (OpenCV layout); diameter defaults to half the neighbour
+    distance; ``flex`` see :class:`Target`."""
     check_length(spacing_m, "spacing_m")
     diameter = 0.5 * spacing_m if diameter_m is None else diameter_m
     margin = spacing_m if margin_m is None else margin_m
@@ -143,11 +205,11 @@ def circle_grid(grid=(4, 11), spacing_m=0.02, diameter_m=None, asymmetric=False,
                             asymmetric=asymmetric, margin_m=margin)
     kind = board.kind
     spec = {"kind": kind, "grid": list(grid), "spacing_m": spacing_m, "diameter_m": diameter, "margin_m": margin}
-    return Target(kind, (board,), spec)
+    return Target(kind, (board,), _flex_spec(spec, flex), flex)
 
 
 def cube(edge_m=0.2, squares=7, square_m=0.025, marker_m=0.01875, dictionary="DICT_5X5_1000",
-         faces=tuple(CUBE_FACES)) -> Target:
+         faces=tuple(CUBE_FACES), flex=False) -> Target:
     """A cube with a ChArUco board on each chosen face; target frame at the cube centre.
 
     Parameters
@@ -163,6 +225,8 @@ def cube(edge_m=0.2, squares=7, square_m=0.025, marker_m=0.01875, dictionary="DI
     faces : sequence of str
         Faces carrying a board, among ``"+x" "-x" "+y" "-y" "+z" "-z"`` (outward normal in the
         target frame); e.g. leave out ``"-z"`` for a cube standing on its bottom face.
+    flex : bool
+        Refused when true (:class:`InputError`): the faces are rigidly joined.
 
     Notes
     -----
@@ -198,7 +262,7 @@ def cube(edge_m=0.2, squares=7, square_m=0.025, marker_m=0.01875, dictionary="DI
         ))
     spec = {"kind": "cube", "edge_m": edge_m, "squares": squares, "square_m": square_m, "marker_m": marker_m,
             "dictionary": dictionary, "faces": list(faces)}
-    return Target("cube", tuple(boards), spec)
+    return Target("cube", tuple(boards), spec, flex)
 
 
 def _cube_face_pose(normal: np.ndarray, edge_m: float) -> RigidTransform:

@@ -13,6 +13,7 @@ Examples of the file, one per kind (lengths in metres; optional fields in commen
     marker_m = 0.03
     dictionary = "DICT_5X5_1000"
     # first_marker_id = 0, margin_m = 0.02
+    # flex = true                 # planar kinds only: the board bends, see below
 
     kind = "circles"              # or "circles_asym" (OpenCV's asymmetric grid)
     grid = [4, 11]
@@ -25,6 +26,10 @@ Examples of the file, one per kind (lengths in metres; optional fields in commen
     square_m = 0.025
     marker_m = 0.01875
     # dictionary = "DICT_5X5_1000", faces = ["+x", "-x", "+y", "-y", "+z", "-z"]
+
+``flex = true`` (chessboard, charuco, circles, circles_asym; default false) declares a board that
+bends (foam, card): the calibration then estimates two parabolic flex terms
+(:func:`scanrig.targets.target.flex_shape`). A cube with ``flex = true`` is refused.
 """
 
 from __future__ import annotations
@@ -40,11 +45,11 @@ from scanrig.targets.target import TARGET_KINDS, Target, charuco, chessboard, ci
 
 #: kind -> (constructor, required fields, optional fields); field names are the constructors' arguments.
 _KINDS = {
-    "chessboard": (chessboard, ("inner_corners", "square_m"), ("margin_m",)),
-    "charuco": (charuco, ("squares", "square_m", "marker_m", "dictionary"), ("first_marker_id", "margin_m")),
-    "circles": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m")),
-    "circles_asym": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m")),
-    "cube": (cube, ("edge_m", "squares", "square_m", "marker_m"), ("dictionary", "faces")),
+    "chessboard": (chessboard, ("inner_corners", "square_m"), ("margin_m", "flex")),
+    "charuco": (charuco, ("squares", "square_m", "marker_m", "dictionary"), ("first_marker_id", "margin_m", "flex")),
+    "circles": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m", "flex")),
+    "circles_asym": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m", "flex")),
+    "cube": (cube, ("edge_m", "squares", "square_m", "marker_m"), ("dictionary", "faces", "flex")),
 }
 
 
