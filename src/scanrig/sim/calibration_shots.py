@@ -4,7 +4,10 @@ Each board of a :class:`scanrig.targets.Target` becomes a flat rectangle whose a
 board's own printed reflectance function (black ink on white paper), sampled exactly at every
 ray hit; edges are pixel-integrated by the renderer's sub-pixel supersampling. The cube's six
 boards form its closed surface. Poses are random but keep the target in view of at least two
-cameras (a pose may cut the target at the image border in some cameras).
+cameras (a pose may cut the target at the image border in some cameras). A scene's
+``board_flex_m`` bends every board (:func:`scanrig.targets.target.flex_shape`): the rectangle
+becomes a grid of triangles whose chords stay within ``primitives.MAX_SAG_M`` of the bent
+surface, printed at the same board (x, y).
 """
 
 from __future__ import annotations
@@ -65,18 +68,59 @@ def default_target(kind: str):
 
 
 def target_scene(target, world_from_target: RigidTransform, room: Scene) -> Scene:
-    """A scene holding only the target at a pose, lit like ``room``."""
+    """A scene holding only the target at a pose, lit like ``room``, its boards bent by
+    ``room.board_flex_m``."""
     objects = []
+    flex_m = np.asarray(room.board_flex_m, dtype=np.float64)
     for board in target.boards:
         w, h = board.size_m
-        rect = primitives.plane((w, h))
         world_from_board = world_from_target @ board.target_from_board
-        m = world_from_board.as_matrix() @ np.array([[1, 0, 0, w / 2], [0, 1, 0, h / 2], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-        rect.apply_transform(m)
+        if np.any(flex_m):
+            rect = bent_board_mesh(board, flex_m)
+            rect.apply_transform(world_from_board.as_matrix())
+        else:
+            rect = primitives.plane((w, h))
+            m = world_from_board.as_matrix() @ np.array([[1, 0, 0, w / 2], [0, 1, 0, h / 2], [0, 0, 1, 0],
+                                                         [0, 0, 0, 1.0]])
+            rect.apply_transform(m)
         mat = PrintedMaterial(board.name, "matte", albedo=PAPER_ALBEDO, board=board,
                               board_from_world=world_from_board.inverse())
         objects.append(SceneObject(board.name, rect, mat))
     return replace(room, name=f"{room.name}+target", objects=tuple(objects))
+
+
+def bent_board_mesh(board, flex_m: np.ndarray):
+    """A board's printed rectangle bent by ``flex_m``, in the board frame.
+
+    Parameters
+    ----------
+    board : scanrig.targets.Board
+    flex_m : ndarray of shape (2,)
+        ``(c_x, c_y)`` of :func:`scanrig.targets.target.flex_shape`, metres.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        A regular grid over ``[0, w] x [0, h]`` at ``z = flex_shape(x, y) · flex_m``, split into
+        triangles oriented as :func:`scanrig.sim.primitives.plane`'s; along each axis the chord of a cell
+        departs from the parabola by at most ``primitives.MAX_SAG_M / 2``.
+    """
+    import trimesh
+
+    from scanrig.targets.target import flex_shape
+
+    size = np.asarray(board.size_m, dtype=np.float64)
+    grid = board.points_local
+    half = 0.5 * (grid.max(axis=0) - grid.min(axis=0))
+    # Chord sag of z = c (x / half)² over a cell of width d is c d² / (4 half²).
+    cells = np.maximum(1, np.ceil(size / half * np.sqrt(np.abs(flex_m) / (2.0 * primitives.MAX_SAG_M)))).astype(int)
+    xx, yy = np.meshgrid(np.linspace(0.0, size[0], cells[0] + 1), np.linspace(0.0, size[1], cells[1] + 1))
+    xy = np.column_stack([xx.ravel(), yy.ravel()])
+    vertices = np.column_stack([xy, flex_shape(board, xy) @ flex_m])
+    corner = (np.arange(cells[1])[:, None] * (cells[0] + 1) + np.arange(cells[0])[None, :]).ravel()
+    right, up = corner + 1, corner + cells[0] + 1
+    faces = np.concatenate([np.column_stack([corner, right, up + 1]), np.column_stack([corner, up + 1, up])])
+    return trimesh.Trimesh(vertices, faces, process=False)
 
 
 def calibration_sensor(room: Scene):
@@ -176,7 +220,8 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
                       rng: np.random.Generator, workers: int | None = None,
                       progress=None) -> dict[str, RigidTransform]:
     """Write ``target.toml``, ``calibration/<camera>/<shot>.png`` (``.jpg`` from a colour camera
-    that stores JPEG) and ``truth/target_poses.csv``; returns ``world_from_target`` by shot stem.
+    that stores JPEG), ``truth/target_poses.csv`` and, for a scene whose boards bend,
+    ``truth/board_flex.csv``; returns ``world_from_target`` by shot stem.
 
     Poses are drawn from ``rng`` in order; each shot's noise has its own spawned generator.
     """
@@ -215,4 +260,7 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
     for stem, pose in zip(stems, poses):
         lines.append(",".join([stem, *(repr(float(v)) for v in pose.R.ravel()), *(repr(float(v)) for v in pose.t)]))
     write_text_atomic(out / "truth" / "target_poses.csv", "\n".join(lines) + "\n")
+    if any(room.board_flex_m):
+        write_text_atomic(out / "truth" / "board_flex.csv",
+                          "c_x_m,c_y_m\n" + ",".join(repr(float(v)) for v in room.board_flex_m) + "\n")
     return dict(zip(stems, poses))

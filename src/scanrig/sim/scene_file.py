@@ -27,6 +27,9 @@ takes the fields of the matching class: :class:`~scanrig.sim.scene.Lighting`,
     halo_fraction = 0.3
     laser_overexposure = 8.0          # sets the laser's powers (scanrig.sim.laser_exposure)
 
+    [calibration]                     # optional
+    board_flex_m = [0.001, 0.0]       # calibration target's boards bent by (c_x, c_y), metres
+
     [materials.steel]
     kind = "metal"                    # matte | dark | metal
     specular = 0.6
@@ -52,6 +55,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -67,7 +71,7 @@ from scanrig.sim.scene import Lighting, Scene, SceneObject, place
 from scanrig.sim.sensor import Sensor
 
 _TOP = ("name", "description", "center_m", "radius_m", "lighting", "rig", "laser", "sensor", "camera", "materials",
-        "objects")
+        "objects", "calibration")
 _SECTIONS = {"lighting": Lighting, "rig": RigSpec, "laser": LaserSpec, "sensor": Sensor}
 _OBJECT_COMMON = ("name", "shape", "material", "position_m", "rotation_deg")
 #: Keys of ``[camera]`` besides the fields of ColourResponse.
@@ -106,6 +110,7 @@ def load_scene_file(path: str | Path) -> Scene:
     if not isinstance(tables, list) or not tables:
         raise FileFormatError(path, "objects must be a non-empty array of [[objects]] tables")
     objects = [_object(t, i, materials, path) for i, t in enumerate(tables, start=1)]
+    board_flex_m = _board_flex(doc.get("calibration", {}), path)
     try:
         return Scene(
             name=str(doc.get("name", path.stem)),
@@ -113,6 +118,7 @@ def load_scene_file(path: str | Path) -> Scene:
             center_m=tuple(doc.get("center_m", (0.0, 0.0, 0.1))),
             radius_m=float(doc.get("radius_m", 0.25)),
             colour=colour,
+            board_flex_m=board_flex_m,
             **sections,
         )
     except (InputError, TypeError, ValueError) as exc:
@@ -129,6 +135,19 @@ def _section(table, cls, path: Path, where: str, **fixed):
         return cls(**fixed, **values)
     except (InputError, TypeError, ValueError) as exc:
         raise FileFormatError(path, f"{where}: {exc}") from None
+
+
+def _board_flex(table, path: Path) -> tuple[float, float]:
+    """``board_flex_m`` of the ``[calibration]`` table: two finite numbers, metres ((0, 0) if absent)."""
+    where = "[calibration]"
+    if not isinstance(table, Mapping):
+        raise FileFormatError(path, f"{where}: expected a table")
+    check_keys(table, ("board_flex_m",), (), path, where)
+    value = table.get("board_flex_m", [0.0, 0.0])
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        raise FileFormatError(path, f"{where}: board_flex_m must be two numbers (c_x, c_y) in metres, got {value!r}")
+    return float(value[0]), float(value[1])
 
 
 def _camera(table, laser_table, sections: dict, center_m, path: Path) -> ColourResponse | None:
