@@ -217,18 +217,20 @@ def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarr
     """Start values ``(n, 7)``: the best of the trial widths, then per channel the amplitude and the
     background solved linearly for it from that channel's usable pixels (``y, usable (n, M, 3)``,
     ``trial (k, M)`` the unit profile of each trial width, centred on the seed)."""
-    g = trial[None, None]  # (1, 1, k, M)
-    w = usable.transpose(0, 2, 1)[:, :, None, :].astype(float)  # (n, 3, 1, M)
-    yy = y.transpose(0, 2, 1)[:, :, None, :]
-    s_w, s_g, s_y = w.sum(-1), (w * g).sum(-1), (w * yy).sum(-1)  # (n, 3, k)
-    s_gg, s_gy = (w * g * g).sum(-1), (w * g * yy).sum(-1)
+    w = usable.transpose(0, 2, 1).astype(float)  # (n, 3, M)
+    yy = y.transpose(0, 2, 1)
+    wy = w * yy
+    # the sums over the pixels, (n, 3, k), or (n, 3, 1) where they do not depend on the width
+    s_w, s_y, s_yy = w.sum(-1)[..., None], wy.sum(-1)[..., None], (wy * yy).sum(-1)[..., None]
+    s_g, s_gg, s_gy = w @ trial.T, w @ (trial * trial).T, wy @ trial.T
     det = s_w * s_gg - s_g**2
     solvable = det > 1e-9 * np.maximum(s_w * s_gg, 1e-300)  # else the channel has no usable flank: 0
     with np.errstate(divide="ignore", invalid="ignore"):
         amp = np.where(solvable, (s_w * s_gy - s_g * s_y) / np.where(solvable, det, 1.0), 0.0)
         bg = np.where(s_w > 0, (s_y - amp * s_g) / np.maximum(s_w, 1e-300), 0.0)
-    resid = (w * (yy - amp[..., None] * g - bg[..., None]) ** 2).sum(-1) / noise[None, :, None] ** 2
-    best = np.argmin(resid.sum(axis=1), axis=1)  # (n,)
+    # the weighted squared residual of each linear fit, from the same sums (no (n, 3, k, M) array)
+    resid = s_yy - 2.0 * (amp * s_gy + bg * s_y) + amp**2 * s_gg + 2.0 * amp * bg * s_g + bg**2 * s_w
+    best = np.argmin((resid / noise[None, :, None] ** 2).sum(axis=1), axis=1)  # (n,)
     pick = np.arange(y.shape[0])
     a, b = amp[pick, :, best], bg[pick, :, best]  # (n, 3)
     a[:, laser] = np.maximum(a[:, laser], 1.0)  # a peak, not a dip; the fit clips to its bounds
