@@ -98,17 +98,25 @@ def accuracy(seeds) -> None:
 def speed(reps: int) -> None:
     cv2.setNumThreads(1)
     on, off, _ = stripe_frames(np.random.default_rng(0), shape=(1080, 1920))
-    print(f"\nSpeed, one 1920x1080 RGB frame, one core, ms (median and best of {reps}; "
-          f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-    for name, fn in (("detect_stripe", lambda: detect_stripe(on, color="red")),
-                     ("detect_stripe, laser-off frame", lambda: detect_stripe(on, color="red", dark=off)),
-                     ("COG7 baseline", lambda: cog_rows(on, None))):
-        times = []
+    print(f"\nSpeed, one 1920x1080 RGB frame, one core, ms: median wall under the current load, median and "
+          f"best CPU of {reps} runs, and the median CPU over the COG7 baseline's in this run "
+          f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+    print(f"  {'task':32}{'wall':>9}{'cpu':>9}{'best':>9}{'x COG7':>9}")
+    runs = {"detect_stripe": lambda: detect_stripe(on, color="red"),
+            "detect_stripe, laser-off frame": lambda: detect_stripe(on, color="red", dark=off),
+            "COG7 baseline": lambda: cog_rows(on, None)}
+    measured = {}
+    for name, fn in runs.items():
+        fn()
+        wall, cpu = [], []
         for _ in range(reps):
-            t0 = time.perf_counter()
+            w0, c0 = time.perf_counter(), time.process_time()
             fn()
-            times.append(1e3 * (time.perf_counter() - t0))
-        print(f"  {name:32}{np.median(times):9.1f}{min(times):9.1f}")
+            cpu.append(1e3 * (time.process_time() - c0))
+            wall.append(1e3 * (time.perf_counter() - w0))
+        measured[name] = np.median(wall), np.median(cpu), min(cpu)
+    for name, (wall, cpu, best) in measured.items():
+        print(f"  {name:32}{wall:9.1f}{cpu:9.1f}{best:9.1f}{cpu / measured['COG7 baseline'][1]:9.1f}")
 
 
 def ciclop() -> None:
