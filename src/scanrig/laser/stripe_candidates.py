@@ -100,9 +100,10 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     are not suppressed by a stronger neighbour."""
     cand = find_candidates(li, along, excess, k_detect=k_detect)
     rows = along == "rows"
-    line, pos = (cand.v, cand.u) if rows else (cand.u, cand.v)
-    order = np.lexsort((pos, line))
-    line, pos, score = line[order], pos[order], cand.score[order]
+    line, pos, score = (cand.v, cand.u, cand.score) if rows else (cand.u, cand.v, cand.score)
+    if not rows:  # sorted by row, then column: now by column, then row (one integer key sorts fastest)
+        order = np.argsort(line * li.signal.shape[0] + pos)
+        line, pos, score = line[order], pos[order], score[order]
     keep = suppress_on_lines(line, pos, score, min_separation_px)
     line, pos = line[keep], pos[keep]
     signal = li.signal if rows else li.signal.T
