@@ -282,8 +282,8 @@ def prepare_image(
         saturated = _close_gaps(channel >= clip_level)
     signal = _signal(image, color)
     if dark is not None:
-        dark_signal = _signal(dark, color).astype(np.float32)
-        signal = signal.astype(np.float32) - dark_signal
+        dark_signal = np.asarray(_signal(dark, color), np.float32)  # a copy only of integer frames
+        signal = np.subtract(signal, dark_signal, dtype=np.float32)
     dark_saturated = None
     if saturated is not None and signal.dtype == np.float32:
         # A white core reads as the brightest part of the trace; after dark subtraction, as what
