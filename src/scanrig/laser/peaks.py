@@ -7,7 +7,9 @@
 2. *Local maxima* in 8 × 8 patches around the flagged blocks of the 3 × 3 box sum (a cheap
    matched filter that gains up to 3× in SNR on wide traces): 2-D maxima for spots, maxima along
    the scan line for stripes. The patches are stacked candidate-minor, ``(8, 8, n)``, so that
-   each NumPy step runs over ``n`` contiguous values rather than over many 8-pixel rows.
+   each NumPy step runs over ``n`` contiguous values rather than over many 8-pixel rows. Where
+   most blocks are flagged (texture in a colour frame), whole-frame OpenCV filters find the same
+   maxima faster.
 3. *Detection test*: the box sum above 9 × background must exceed ``k_detect`` times its noise
    (3σ). At ``k_detect = 6`` pure noise gives about 1e-9 false candidates per pixel.
 4. *Suppression*: of candidates closer than ``min_separation_px``, the stronger one stays.
@@ -15,7 +17,8 @@
    reflectance (a printed dot, a square, a board's edge, wood grain) has one flank only. The box
    sum at a candidate is compared with the lowest box sum on *each* side within reach, and the
    higher of the two lows is its base: :func:`line_prominence`. A step has no base on its bright
-   side and gets no prominence.
+   side and gets no prominence. Many candidates read the lows from one erosion of the whole
+   frame's box sums along the lines.
 """
 
 from __future__ import annotations
