@@ -168,13 +168,21 @@ def test_candidates_match_a_plain_search(along, search, monkeypatch):
     np.testing.assert_allclose(found.score, score[keep], rtol=1e-6)
 
 
-@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-@pytest.mark.parametrize("transposed", [False, True])
-def test_prominence_table_and_erosion_match_the_windows_and_a_plain_loop(dtype, transposed):
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+@pytest.mark.parametrize("layout", ["frame", "transposed", "roi", "transposed roi"])
+def test_prominence_table_and_erosion_match_the_windows_and_a_plain_loop(dtype, layout):
     rng = np.random.default_rng(21)
     signal = rng.integers(0, 255, size=(23, 61)).astype(dtype)
-    if transposed:  # a column scan's view of a contiguous frame, as the detector passes it
+    if layout == "transposed":  # a column scan's view of a frame, as the detector passes it
         signal = np.ascontiguousarray(signal.T).T
+    elif layout == "roi":  # a region of interest: a view into a larger frame
+        frame = rng.integers(0, 255, size=(31, 70)).astype(dtype)
+        frame[3:26, 5:66] = signal
+        signal = frame[3:26, 5:66]
+    elif layout == "transposed roi":  # ... and a column scan's view of it
+        frame = rng.integers(0, 255, size=(70, 31)).astype(dtype)
+        frame[5:66, 3:26] = signal.T
+        signal = frame[5:66, 3:26].T
     n = 200
     line = rng.integers(0, 23, n)
     pos = np.r_[0, 60, 1, 59, rng.integers(0, 61, n - 4)]  # the frame's edges included
