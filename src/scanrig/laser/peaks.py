@@ -407,7 +407,8 @@ def _prominence_from_erosion(signal, line, pos, reach) -> tuple[np.ndarray, np.n
 
     n_pos = signal.shape[1]
     r = int(np.bincount(reach).argmax())
-    easy = np.flatnonzero((reach == r) & (pos >= r) & (pos < n_pos - r))
+    inside = (reach == r) & (pos >= r) & (pos < n_pos - r)
+    easy = np.flatnonzero(inside)
     along_rows = signal.strides[1] == signal.itemsize or signal.strides[0] != signal.itemsize
     # a transposed view (columns scanned) is filtered as its base, and eroded across the base's rows
     base = np.ascontiguousarray(signal) if along_rows else signal.T
@@ -419,7 +420,7 @@ def _prominence_from_erosion(signal, line, pos, reach) -> tuple[np.ndarray, np.n
     centre[easy] = box.ravel().take(at)
     lowest = lowest.ravel()
     prominence[easy] = centre[easy] - np.maximum(lowest.take(at - r * step), lowest.take(at + step))
-    rest = np.setdiff1d(np.arange(line.size), easy, assume_unique=True)
+    rest = np.flatnonzero(~inside)
     if rest.size:
         n_levels = int(reach[rest].max()).bit_length()
         by = (_prominence_from_windows if _windows_cost(reach[rest]) <= (n_levels + 3) * signal.size
