@@ -36,6 +36,8 @@ MIN_COS_FOOTPRINT = 0.1
 #: Beamlet sets up to this size are evaluated densely; larger ones only at their nearest landings.
 _MAX_DENSE_BEAMS = 8
 _MAX_NEIGHBOUR_BEAMS = 24
+#: Ratio of the largest to the smallest reach of a class of beamlets (GaussianBeams.may_light).
+_REACH_CLASS_RATIO = 1.25
 #: Fan samples cast per stripe frame (render windows, secondary beamlets) and written to truth.
 N_FAN_SAMPLES = 2048
 N_FAN_TRUTH = 512
@@ -158,6 +160,46 @@ class GaussianBeams:
         """1/e² radius at distance ``z`` along the axis (broadcast over beams ``idx``)."""
         return self.waist_m[idx] * np.sqrt(1.0 + ((z - self.focus_m[idx]) / self.rayleigh_m[idx]) ** 2)
 
+    def may_light(self, x: np.ndarray, reach_m: np.ndarray) -> np.ndarray:
+        """False where no point within ``reach_m`` of ``x`` gets light from these beams above the
+        footprint cut (:data:`FOOTPRINT_RADII` radii off every axis; for beamlets evaluated only
+        near their landings: no landing within its reach).
+
+        Parameters
+        ----------
+        x : ndarray of shape (N, 3)
+            Points, world metres.
+        reach_m : ndarray of shape (N,)
+            Distance around each point, metres.
+
+        Returns
+        -------
+        ndarray of shape (N,), bool
+        """
+        m = len(self.power_W)
+        if self.landing is None or m <= _MAX_DENSE_BEAMS:
+            rel = x[:, None, :] - self.origin[None]                       # (N, M, 3)
+            z = np.einsum("nmj,mj->nm", rel, self.direction)
+            rho = np.sqrt(np.maximum(np.einsum("nmj,nmj->nm", rel, rel) - z * z, 0.0))
+            r = reach_m[:, None]
+            # the radius is convex in z: its largest value within the reach is at an end
+            w = np.maximum(self.radius(z - r), self.radius(z + r))
+            return ((z + r > 0) & (rho - r <= FOOTPRINT_RADII * w)).any(axis=1)
+        from scipy.spatial import cKDTree
+
+        # A beamlet lights a point within the reach only if it lands within its own reach plus
+        # the point's. Beamlets are grouped by reach (classes of ratio _REACH_CLASS_RATIO); in
+        # each class the nearest landing is tested against the class's largest reach.
+        may = np.zeros(len(x), dtype=bool)
+        reach_class = np.floor(np.log(self.reach_m / self.reach_m.min()) / np.log(_REACH_CLASS_RATIO))
+        for c in np.unique(reach_class):
+            members = reach_class == c
+            top_m = float(self.reach_m[members].max())
+            open_ = np.flatnonzero(~may)
+            dist, _ = cKDTree(self.landing[members]).query(x[open_], distance_upper_bound=top_m + reach_m.max(initial=0.0))
+            may[open_] = dist - reach_m[open_] <= top_m
+        return may
+
     def evaluate(self, x: np.ndarray):
         """Irradiance across the beams at points, summed over beams.
 
@@ -178,15 +220,17 @@ class GaussianBeams:
         n = len(x)
         idx, valid = self._candidates(x)
         total = np.zeros(n)
-        arg = np.zeros(n, dtype=np.int64)
+        arg = idx[:, 0].copy()          # where no beam reaches, the first candidate (no light)
         path = np.zeros(n)
+        reached = np.flatnonzero(valid.any(axis=1))
         chunk = max(1, (1 << 22) // idx.shape[1])
-        for s in range(0, n, chunk):
-            b = idx[s:s + chunk]                                          # (n, k) beam indices
+        for s in range(0, len(reached), chunk):
+            r = reached[s:s + chunk]
+            b = idx[r]                                                    # (n, k) beam indices
             # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
-            rows, cols = np.nonzero(valid[s:s + chunk])
+            rows, cols = np.nonzero(valid[r])
             pair = b[rows, cols]
-            rel = x[s + rows] - self.origin[pair]                         # (p, 3)
+            rel = x[r[rows]] - self.origin[pair]                          # (p, 3)
             z_pair = np.einsum("ij,ij->i", rel, self.direction[pair])
             rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
             w = self.radius(z_pair, pair)
@@ -196,11 +240,11 @@ class GaussianBeams:
             inten[rows, cols] = inten_pair
             z = np.zeros(b.shape)
             z[rows, cols] = z_pair
-            total[s:s + chunk] = inten.sum(axis=1)
+            total[r] = inten.sum(axis=1)
             a = inten.argmax(axis=1)
             at = np.arange(len(a))
-            arg[s:s + chunk] = b[at, a]
-            path[s:s + chunk] = z[at, a]
+            arg[r] = b[at, a]
+            path[r] = z[at, a]
         if self.emitter_normal is not None:
             n_e = self.emitter_normal[arg]
             path = np.einsum("ij,ij->i", x - self.origin[arg], n_e) / np.einsum("ij,ij->i", self.direction[arg], n_e)
@@ -222,6 +266,17 @@ class LightSheet:
 
     def radius(self, r: np.ndarray) -> np.ndarray:
         return self.waist_m * np.sqrt(1.0 + ((r - self.focus_m) / self.rayleigh_m) ** 2)
+
+    def may_light(self, x: np.ndarray, reach_m: np.ndarray) -> np.ndarray:
+        """False where no point within ``reach_m`` (N,) of ``x`` (N, 3) gets light from the sheet
+        above the footprint cut (:data:`FOOTPRINT_RADII` half-thicknesses off its plane); see
+        :meth:`GaussianBeams.may_light`."""
+        rel = x - self.origin
+        off_plane = np.abs(rel @ np.cross(self.direction, self.fan_axis))
+        r = np.hypot(rel @ self.fan_axis, rel @ self.direction)
+        # the half-thickness is convex in r: its largest value within the reach is at an end
+        w = np.maximum(self.radius(r - reach_m), self.radius(r + reach_m))
+        return off_plane - reach_m <= FOOTPRINT_RADII * w
 
     def evaluate(self, x: np.ndarray):
         """Irradiance of the sheet at points (see :meth:`GaussianBeams.evaluate`)."""

@@ -7,9 +7,11 @@ Image formation, in order (all linear until the sensor):
    of ``s × s`` sub-pixel rays (pixel integration where it matters);
 2. electrons = radiance × :attr:`Sensor.e_per_radiance`, then the Gaussian lens PSF;
 3. a laser frame adds the laser's electrons only in a window around the projected footprints:
-   ``s × s`` sub-pixel rays per pixel are cast through the real distorted camera (occlusion and
-   distortion exact), the optical image at s× resolution gets speckle and the PSF, and each pixel
-   averages its block (pixel integration after blur, as on a real sensor);
+   in the window's pixels that the laser may light (one ray through each centre decides,
+   :mod:`scanrig.sim.lit_pixels`) ``s × s`` sub-pixel rays per pixel are cast through the real
+   distorted camera (occlusion and distortion exact), the optical image at s× resolution gets
+   speckle and the PSF, and each pixel averages its block (pixel integration after blur, as on a
+   real sensor);
 4. noise, full well, gain, black level, rounding and clipping (:mod:`scanrig.sim.sensor`).
 
 A colour camera (``scene.colour``, :mod:`scanrig.sim.colour`) sees the grey background times
@@ -34,6 +36,7 @@ from scanrig.sim.colour import (
     stored,
 )
 from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
+from scanrig.sim.lit_pixels import lit_pixels
 from scanrig.sim.materials import specular_lobe
 from scanrig.sim.pixel_integration import edge_sample_offsets, integrate_pixels
 from scanrig.sim.pixel_rays import PixelRayTable
@@ -173,6 +176,42 @@ class CameraView:
         """
         import cv2
 
+        sensor = self.sensor
+        found = self.window_mask(trace)
+        if found is None:
+            return None
+        mask, u0, v0 = found
+        rows, cols = np.nonzero(mask)
+        lit = lit_pixels(self, mask, u0, v0, trace.sources)         # (pixels, sources)
+        some = lit.any(axis=1)
+        rows, cols, lit = rows[some], cols[some], lit[some]
+        centres = np.column_stack([cols + u0, rows + v0]).astype(np.float64)
+        s = sensor.supersampling
+        radiance = self.laser_radiance(_subpixel_samples(centres, s), trace, np.repeat(lit, s * s, axis=0))
+        # The image on the sensor at s× resolution: speckle and the lens PSF act on the optical
+        # image, then each pixel integrates (averages) its s × s block.
+        fine = np.zeros((mask.shape[0] * s, mask.shape[1] * s), dtype=np.float32)
+        sub_r, sub_c = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+        fine[(rows[:, None] * s + sub_r.ravel()).ravel(), (cols[:, None] * s + sub_c.ravel()).ravel()] = radiance
+        if sensor.speckle_contrast > 0 and rng is not None:
+            fine *= _speckle(fine.shape, sensor.speckle_contrast, sensor.speckle_grain_px * s, rng)
+        if sensor.psf_sigma_px > 0:
+            fine = cv2.GaussianBlur(fine, (0, 0), sensor.psf_sigma_px * s, borderType=cv2.BORDER_CONSTANT)
+        patch = fine.reshape(mask.shape[0], s, mask.shape[1], s).mean(axis=(1, 3)) * sensor.e_per_radiance
+        return Window(v0, u0, patch)
+
+    def window_mask(self, trace: LaserTrace):
+        """The pixels a laser trace's light may reach through the lens: discs around its
+        footprints (their extent, the PSF's reach and two pixels), cut to the image.
+
+        Returns
+        -------
+        (mask, u0, v0) or None
+            ``mask`` (h, w) uint8, non-zero on the pixels, covering rows ``v0:v0+h`` and columns
+            ``u0:u0+w``; None when no footprint is in view.
+        """
+        import cv2
+
         cam, sensor = self.camera, self.sensor
         if len(trace.footprint_points) == 0:
             return None
@@ -193,48 +232,41 @@ class CameraView:
         mask = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.uint8)
         for (uu, vv), rr in zip(np.rint(q - [u0, v0]).astype(int), np.ceil(r_px).astype(int)):
             cv2.circle(mask, (int(uu), int(vv)), int(rr), 1, thickness=-1)
-        rows, cols = np.nonzero(mask)
-        centres = np.column_stack([cols + u0, rows + v0]).astype(np.float64)
-        s = sensor.supersampling
-        radiance = self.laser_radiance(_subpixel_samples(centres, s), trace)
-        # The image on the sensor at s× resolution: speckle and the lens PSF act on the optical
-        # image, then each pixel integrates (averages) its s × s block.
-        fine = np.zeros((mask.shape[0] * s, mask.shape[1] * s), dtype=np.float32)
-        sub_r, sub_c = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
-        fine[(rows[:, None] * s + sub_r.ravel()).ravel(), (cols[:, None] * s + sub_c.ravel()).ravel()] = radiance
-        if sensor.speckle_contrast > 0 and rng is not None:
-            fine *= _speckle(fine.shape, sensor.speckle_contrast, sensor.speckle_grain_px * s, rng)
-        if sensor.psf_sigma_px > 0:
-            fine = cv2.GaussianBlur(fine, (0, 0), sensor.psf_sigma_px * s, borderType=cv2.BORDER_CONSTANT)
-        patch = fine.reshape(mask.shape[0], s, mask.shape[1], s).mean(axis=(1, 3)) * sensor.e_per_radiance
-        return Window(v0, u0, patch)
+        return mask, u0, v0
 
-    def laser_radiance(self, q: np.ndarray, trace: LaserTrace) -> np.ndarray:
-        """Radiance that the laser light adds at pixel positions ``q`` (N, 2), W/(m²·sr)."""
+    def laser_radiance(self, q: np.ndarray, trace: LaserTrace, lit: np.ndarray | None = None) -> np.ndarray:
+        """Radiance that the laser light adds at pixel positions ``q`` (N, 2), W/(m²·sr).
+
+        ``lit`` (N, len(trace.sources)), bool, optional: where each source may light (elsewhere its
+        light is taken as zero; :func:`~scanrig.sim.lit_pixels.lit_pixels`); default everywhere.
+        """
         origin, dirs = self.ray_table.rays(q)
         caster = self.scene.raycaster
         ok, hits = caster.first_hits(origin, dirs)
-        radiance = np.zeros(len(q))
-        p, n, ng = hits.point, hits.shading_normal, hits.normal
-        out = np.zeros(len(p))
-        for source in trace.sources:
+        out = np.zeros(len(ok))
+        for j, source in enumerate(trace.sources):
+            at = np.arange(len(ok)) if lit is None else np.flatnonzero(lit[ok, j])
+            if at.size == 0:
+                continue
+            p, n, ng = hits.point[at], hits.shading_normal[at], hits.normal[at]
             inten, prop, path = source.evaluate(p)
             cos_i = np.maximum(-np.einsum("ij,ij->i", prop, n), 0.0) * (np.einsum("ij,ij->i", prop, ng) < 0)
-            lit = np.flatnonzero((inten > 0) & (cos_i > 0))
-            if lit.size == 0:
+            on = np.flatnonzero((inten > 0) & (cos_i > 0))
+            if on.size == 0:
                 continue
-            shadow = caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit], -prop[lit], path[lit] - 2 * SURFACE_EPS_M)
-            lit = lit[~shadow]
-            e = inten[lit] * cos_i[lit]
+            shadow = caster.occluded(p[on] + SURFACE_EPS_M * ng[on], -prop[on], path[on] - 2 * SURFACE_EPS_M)
+            on = on[~shadow]
+            e = inten[on] * cos_i[on]
             # the surface only where this source's light lands
-            albedo, spec, rough = self._surface(hits.obj[lit], p[lit])
+            albedo, spec, rough = self._surface(hits.obj[at[on]], p[on])
             brdf = albedo / np.pi
             shiny = np.flatnonzero(spec > 0)
             if shiny.size:
-                sl = lit[shiny]
-                cos_a = np.einsum("ij,ij->i", reflect(prop[sl], n[sl]), -dirs[ok[sl]])
+                sl = on[shiny]
+                cos_a = np.einsum("ij,ij->i", reflect(prop[sl], n[sl]), -dirs[ok[at[sl]]])
                 brdf[shiny] += spec[shiny] * specular_lobe(cos_a, rough[shiny])
-            out[lit] += e * brdf
+            out[at[on]] += e * brdf
+        radiance = np.zeros(len(q))
         radiance[ok] = out
         return radiance
 
