@@ -162,13 +162,17 @@ def _local_fit(points: np.ndarray, normals: np.ndarray, judged: np.ndarray, nb: 
     (m, k) at distances ``dist`` (m, k); see :func:`local_quadratic_scores`."""
     offsets = points[nb] - points[judged, None, :]
     axes = frames_from_normals(_principal_normal(offsets, normals[judged]))
-    local = np.einsum("mki,mij->mkj", offsets, axes)
-    weight = np.exp(-np.square(dist / np.maximum(np.median(dist, axis=1, keepdims=True), 1e-300)))
+    size = np.maximum(np.median(dist, axis=1), 1e-300)  # (m,) metres per unit of the fit
+    # in units of the neighbours' median distance: in metres, a quadric's products of three
+    # coordinates span 1e-6 of its constant term and its elemental solves lost the fit (a clean
+    # cylinder 15 mm apart missed by up to 490 um)
+    local = np.einsum("mki,mij->mkj", offsets, axes) / size[:, None, None]
+    weight = np.exp(-np.square(dist / size[:, None]))
     coef, g, misfit, kept = _trimmed_fits(basis_of(local), local[..., 2], weight, rng)
     # the point at the origin, height 0: its distance to the fit's tangent plane there
-    residual = -coef[:, 0] / np.hypot(1.0, np.hypot(coef[:, 1], coef[:, 2]))
+    residual = -coef[:, 0] * size / np.hypot(1.0, np.hypot(coef[:, 1], coef[:, 2]))
     near = dist <= np.minimum(SUPPORT_RADIUS * dist[:, SUPPORT_NEAREST - 1:SUPPORT_NEAREST], reach)
-    return residual, g, misfit, np.count_nonzero(kept & near, axis=1)
+    return residual, g, misfit * size, np.count_nonzero(kept & near, axis=1)
 
 
 def _principal_normal(offsets: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -187,9 +191,9 @@ def _trimmed_fits(basis: np.ndarray, h: np.ndarray, weight: np.ndarray, rng: np.
     ----------
     basis : (m, k, p) float array
         Terms of the model at the neighbours (:func:`quadratic_basis` or :func:`quadric_basis` of
-        their local offsets, metres); the first three are ``1, x, y``.
+        their local offsets); the first three are ``1, x, y``.
     h : (m, k) float array
-        Heights, metres.
+        Heights, in the units of the offsets.
     weight : (m, k) float array
         Distance weights of the neighbours.
     rng : numpy.random.Generator
@@ -201,7 +205,7 @@ def _trimmed_fits(basis: np.ndarray, h: np.ndarray, weight: np.ndarray, rng: np.
     g : (m,) float array
         Variance of ``coef[:, 0]`` over the noise variance.
     misfit : (m,) float array
-        Scaled median absolute leave-one-out residual of the kept neighbours, metres.
+        Scaled median absolute leave-one-out residual of the kept neighbours, units of ``h``.
     kept : (m, k) bool array
         The neighbours of the last concentration step.
     """
