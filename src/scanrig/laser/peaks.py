@@ -8,7 +8,7 @@
    matched filter that gains up to 3× in SNR on wide traces): 2-D maxima for spots, maxima along
    the scan line for stripes. The patches are stacked candidate-minor, ``(8, 8, n)``, so that
    each NumPy step runs over ``n`` contiguous values rather than over many 8-pixel rows. Where
-   most blocks are flagged (texture in a colour frame), whole-frame OpenCV filters find the same
+   many blocks are flagged (texture in a colour frame), whole-frame OpenCV filters find the same
    maxima faster.
 3. *Detection test*: the box sum above 9 × background must exceed ``k_detect`` times its noise
    (3σ). At ``k_detect = 6`` pure noise gives about 1e-9 false candidates per pixel.
@@ -249,9 +249,9 @@ def _maxima_in_patches(sig: np.ndarray, flagged: np.ndarray, along: str):
 
 
 def _maxima_of_frame(sig: np.ndarray, flagged: np.ndarray, along: str):
-    """:func:`_maxima_in_patches` from whole-frame OpenCV filters, for frames flagged almost
-    everywhere (texture in a colour frame): the box sums of the frame padded by its edge pixels,
-    compared with their shifted views."""
+    """:func:`_maxima_in_patches` from whole-frame OpenCV filters, for frames flagged over a large
+    part (texture in a colour frame): the box sums of the frame padded by its edge pixels, compared
+    with their shifted views."""
     import cv2
 
     h, w = sig.shape

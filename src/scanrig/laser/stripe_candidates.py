@@ -118,7 +118,7 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
     keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
-    if li.colour is not None:  # asked of the few that passed (most of a textured frame's maxima fail)
+    if li.colour is not None:  # asked only of the candidates that passed the signal's tests
         passed = np.flatnonzero(keep)
         keep[passed] = _seen_in_laser_channel(li.colour, rows, line[passed], pos[passed], reach[passed],
                                               run_half[passed], k_detect)
