@@ -6,9 +6,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scanrig.laser.crb import crb_spot, crb_stripe, effective_noise
-from scanrig.laser.fit import fit_batch, integrated_profile, model_1d, model_2d
+from scanrig.laser.fit import (
+    fit_batch,
+    integrated_profile,
+    model_1d,
+    model_2d,
+    parameter_covariance,
+)
 
-from .synth import profiles
+from .synth import integrated, profiles
 
 # Central differences with step 1e-6 on O(1..100) functions: truncation ~1e-12, rounding ~1e-8.
 FD_STEP = 1e-6
@@ -72,3 +78,26 @@ def test_position_only_bound_is_never_above_the_full_bound():
         assert np.all(known <= full * (1 + 1e-12))
         spot_known = crb_spot(180.0, s, offsets, 0.0, 2.0, position_only=True)
         assert np.all(spot_known <= crb_spot(180.0, s, offsets, 0.0, 2.0) * (1 + 1e-12))
+
+
+def test_covariance_with_correlated_noise_matches_the_scatter():
+    """Noise correlated between neighbouring pixels (moving average ``e_i + a e_(i+1)``, as
+    demosaicing leaves it): with its correlation along the window the reported σ matches the
+    centres' scatter; taken as white it understates it."""
+    rng = np.random.default_rng(17)
+    n, half, a, noise = 4000, 9, 0.8, 1.5
+    x = np.arange(-half, half + 1, dtype=float)
+    true_x = rng.uniform(-0.5, 0.5, n)
+    white = rng.normal(0.0, noise / np.hypot(1.0, a), (n, x.size + 1))
+    y = 10.0 + 60.0 * integrated(x[None, :], true_x[:, None], 1.4) + white[:, :-1] + a * white[:, 1:]
+    p0 = np.stack([np.full(n, 60.0), np.zeros(n), np.full(n, 1.0), np.full(n, 10.0)], axis=1)
+    res = fit_batch(lambda p: model_1d(x, p), y, np.ones(y.shape, bool), p0,
+                    np.array([1e-3, -half, 0.3, -np.inf]), np.array([np.inf, half, 4, np.inf]))
+    err = res.params[:, 1] - true_x
+    correlation = np.array([1.0, a / (1.0 + a * a)])
+    sigma = np.full(n, noise)
+    spread_correlated = 1.4826 * np.median(np.abs(err / np.sqrt(parameter_covariance(res, sigma, correlation=correlation)[:, 1, 1])))
+    spread_white = 1.4826 * np.median(np.abs(err / np.sqrt(parameter_covariance(res, sigma)[:, 1, 1])))
+    sampling_error = 4 * 1.17 / np.sqrt(n)  # 4 standard errors of a MAD-based spread from n samples
+    assert spread_correlated == pytest.approx(1.0, abs=sampling_error)
+    assert spread_white > 1.0 + 3 * sampling_error

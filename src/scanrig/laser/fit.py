@@ -493,7 +493,8 @@ SHOT_NOISE_SIGNIFICANCE = 3.0
 _SLOPE_SAMPLE = 256
 
 
-def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[int, ...] = (1,)) -> np.ndarray:
+def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[int, ...] = (1,),
+                         correlation: np.ndarray | None = None, shot_slope: float | None = None) -> np.ndarray:
     """Covariance of the fitted parameters, honest under signal-dependent (shot) noise.
 
     The pixel variance is modelled as ``σ_c² + k · s_i``: σ_c the local background noise of the
@@ -505,7 +506,8 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
     ``σ² (JᵀJ)⁻¹``. The least-squares estimate is unweighted;
     under the modelled variance its covariance is the sandwich ``(JᵀJ)⁻¹ Jᵀ V J (JᵀJ)⁻¹``. Finally
     :func:`centre_misfit` inflates fits whose χ² is still significant, by what their residuals
-    say about the centre.
+    say about the centre. Noise correlated between neighbouring pixels of a 1-D window (demosaicing,
+    JPEG) enters the sandwich as ``V^½ R V^½``, ``R`` the correlation at each pixel lag.
 
     Parameters
     ----------
@@ -514,6 +516,11 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
         Background noise σ at each candidate.
     centre : tuple of int
         Indices of the centre's parameters, for :func:`centre_misfit`.
+    correlation : (L,) float array, optional
+        Noise correlation between pixels ``0 .. L − 1`` apart along a 1-D window (``correlation[0]
+        = 1``; beyond ``L − 1``, 0). Default: white noise.
+    shot_slope : float, optional
+        Known shot-noise slope ``k``, DN per DN of signal; default: pooled from the residuals.
 
     Returns
     -------
@@ -528,8 +535,8 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
     good = np.all(np.isfinite(info), axis=(1, 2))
     usable = np.flatnonzero(good)  # the pooled slope needs only an evenly spread sample of them
     sample = usable[:: max(1, usable.size // _SLOPE_SAMPLE)]
-    slope = 0.0
-    if sample.size:
+    slope = 0.0 if shot_slope is None else shot_slope
+    if shot_slope is None and sample.size:
         jg = np.take(jac, sample, axis=-1)  # (P, M, k)
         if sample.size < _UNROLLED_MIN:
             jk = jg.transpose(2, 1, 0)  # (k, M, P)
@@ -547,10 +554,9 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
             standard_error = np.sqrt(2.0) * (float(var_sample.sum()) / var_sample.size) / np.sqrt(sxx)
             if slope < SHOT_NOISE_SIGNIFICANCE * standard_error:
                 slope = 0.0
-    if slope > 0.0:
+    if slope > 0.0 or correlation is not None:
         pixel_var = np.where(fitted, base_var + slope * np.maximum(signal, 0.0), 0.0)
-        meat = np.einsum("imn,jmn->nij", jac, jac * pixel_var)
-        cov = info @ meat @ info
+        cov = info @ _meat(jac, pixel_var, correlation) @ info
     else:
         pixel_var = np.where(fitted, base_var, 0.0)
         cov = base_var[:, None, None] * info
@@ -559,3 +565,17 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
         factor[good] = centre_misfit(np.take(jac, usable, axis=-1), info[usable], np.take(r, usable, axis=1),
                                      np.take(pixel_var, usable, axis=1), res.dof[usable], centre)
     return cov * factor[:, None, None]
+
+
+def _meat(jac: np.ndarray, pixel_var: np.ndarray, correlation: np.ndarray | None) -> np.ndarray:
+    """``Jᵀ V^½ R V^½ J`` ``(n, P, P)`` of the candidate-minor ``jac (P, M, n)``, pixel variances
+    ``(M, n)`` and the correlation ``R`` at pixel lags ``0 .. L − 1`` (None: ``R = I``)."""
+    if correlation is None:
+        return np.einsum("imn,jmn->nij", jac, jac * pixel_var)
+    jw = jac * np.sqrt(pixel_var)
+    meat = np.einsum("imn,jmn->nij", jw, jw)
+    for lag in range(1, min(len(correlation), jac.shape[1])):  # a few lags, each over all candidates
+        cross = np.einsum("imn,jmn->nij", jw[:, :-lag], jw[:, lag:])
+        meat += correlation[lag] * (cross + cross.transpose(0, 2, 1))
+    return meat
+

@@ -21,6 +21,7 @@ from scanrig.errors import InputError
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.image import prepare_image
+from scanrig.laser.luma import luma_difference
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
 from scanrig.laser.stripe_candidates import (LineCandidates, crossed_steeply, prominent, rank_on_lines,
                                              strongest_per_line)
@@ -136,9 +137,17 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
     parts = []
     if not clipped.all():
         plain = cand.take(~clipped)
-        uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-        parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
-                                max_width_px, plain.prominence))
+        if (li.colour is not None and li.colour.dark is not None
+                and luma_difference(li.colour).carries_laser(li.colour.laser_channel)):
+            fit, failed = _fit_luma(li, rows, saturated, plain, max_width_px)
+            parts.append(fit)
+            plain = plain.take(failed)
+        if plain.line.size:
+            uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
+            fit = _fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
+                             max_width_px, plain.prominence)
+            fit.pop("index")
+            parts.append(fit)
     if clipped.any():
         wide = cand.take(clipped)
         fit = fit_clipped(li.colour, rows, wide.line, wide.pos,
@@ -164,9 +173,27 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
     return cols
 
 
-def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, prominence) -> dict[str, np.ndarray]:
-    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped.
-    The windows are stacked candidate-minor, ``(W, n)`` (see :mod:`scanrig.laser.fit`)."""
+def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Unclipped candidates of a colour frame with a laser-off frame fitted on the luma difference
+    (:mod:`scanrig.laser.luma`), and the indices of those whose fit failed there (a camera whose
+    colour matrix subtracts the laser from green and blue leaves it little luma): those are fitted
+    on the colour difference instead."""
+    luma = luma_difference(li.colour)
+    uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
+    fit = _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos,
+                     np.zeros(plain.line.size), luma.sigma_at(*uv), max_width_px, plain.prominence,
+                     luma.correlation(rows), luma.shot_slope(li.colour.laser_channel))
+    failed = np.ones(plain.line.size, bool)
+    failed[fit.pop("index")] = False
+    return fit, np.flatnonzero(failed)
+
+
+def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, prominence,
+               correlation=None, shot_slope=None) -> dict[str, np.ndarray]:
+    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped
+    (``index`` holds the input index of those kept). The windows are stacked candidate-minor,
+    ``(W, n)`` (see :mod:`scanrig.laser.fit`); the noise is white unless its ``correlation`` along
+    the line is given (:func:`~scanrig.laser.fit.parameter_covariance`)."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
     n_pos = signal.shape[1]
@@ -183,13 +210,13 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, pr
     upper = np.array([np.inf, half, max_width_px, np.inf])
     res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True)
     p = res.params
-    var = parameter_covariance(res, noise)[:, 1, 1]
+    var = parameter_covariance(res, noise, correlation=correlation, shot_slope=shot_slope)[:, 1, 1]
     ok = np.isfinite(var) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX) & (res.dof > 0)
     out = {
         "line": line, "centre": pos + p[:, 1], "var": var, "sigma_px": np.sqrt(np.abs(var)),
         "peak": p[:, 0], "width_px": p[:, 2], "snr": p[:, 0] / noise,
         "saturated": np.zeros(line.size, bool) if sat is None else sat[half - 1 : half + 2].any(axis=0),
-        "prominence": prominence,
+        "prominence": prominence, "index": np.arange(line.size),
     }
     return {k: a[ok] for k, a in out.items()}
 
