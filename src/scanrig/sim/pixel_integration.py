@@ -86,7 +86,12 @@ def _box_gauss_taps(offset: np.ndarray, reach: int, sigma_px: float) -> np.ndarr
     x = (offset + 0.5) * _TABLE_POINTS
     i = np.clip(x.astype(np.int64), 0, _TABLE_POINTS - 1)
     f = (x - i)[..., None]
-    return table[i] * (1.0 - f) + table[i + 1] * f
+    out = np.take(table, i, axis=0)
+    out *= 1.0 - f
+    above = np.take(table, i + 1, axis=0)
+    above *= f
+    out += above
+    return out
 
 
 def _box_box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
