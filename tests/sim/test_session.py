@@ -143,3 +143,18 @@ def test_virtual_rig_records_truth(scene_file):
     diff = lit["cam0"].astype(float) - dark["cam0"].astype(float)
     peak = np.unravel_index(np.argmax(diff), diff.shape)[::-1]
     assert np.hypot(*(peak - q)) < PEAK_TOL_PX
+
+
+def test_virtual_rig_frames_do_not_depend_on_the_background_workers(scene_file):
+    scene = load_scene(scene_file)
+    from scanrig.sim import default_rig
+
+    rig = default_rig(2, scene.center_m, scene.rig)
+    pose = raster_poses(scene.laser, scene.center_m, scene.radius_m, 1, "stripe")[0]
+    frames = []
+    for workers in (1, 2):
+        vr = VirtualRig(scene, rig, np.random.default_rng(5), workers=workers)
+        vr.move_to(pose)
+        vr.set_laser(True)
+        frames.append(vr.grab())
+    assert all(np.array_equal(frames[0][name], frames[1][name]) for name in rig.names)

@@ -48,12 +48,16 @@ class VirtualRig:
         The true cameras.
     rng : numpy.random.Generator
         Source of image noise.
+    workers : int, optional
+        Processes that render the cameras' laser-free backgrounds at the first grab (one camera
+        each; default :func:`scanrig.sim.parallel.run_indexed`'s).
     """
 
-    def __init__(self, scene, rig: Rig, rng: np.random.Generator):
+    def __init__(self, scene, rig: Rig, rng: np.random.Generator, workers: int | None = None):
         self.scene = scene
         self.rig = rig
         self._rng = rng
+        self._workers = workers
         self._views = [CameraView(cam, scene, rng=child) for cam, child in zip(rig.cameras, rng.spawn(len(rig)))]
         self._beam: BeamPose | None = None
         self._laser_on = False
@@ -83,6 +87,7 @@ class VirtualRig:
             (a resumed scan then renders the same frames as an uninterrupted one).
         """
         rng = self._rng if rng is None else rng
+        self._render_backgrounds()
         trace = None
         if self._laser_on and self._beam is not None:
             trace = trace_laser(self._beam, self.scene.laser, self.scene)
@@ -91,3 +96,14 @@ class VirtualRig:
         kinds = trace.truth_kind if trace is not None else []
         self.truth.append(FrameTruth(len(self.truth), self._beam if trace is not None else None, points, kinds))
         return images
+
+    def _render_backgrounds(self) -> None:
+        """Render every camera's laser-free background (:attr:`CameraView.background_e`), the cameras
+        in parallel, unless done; a process forked afterwards inherits them."""
+        from scanrig.sim.parallel import run_indexed
+
+        todo = [view for view in self._views if "background_e" not in view.__dict__]
+        if not todo:
+            return
+        for view, image in zip(todo, run_indexed(lambda i: todo[i].background_e, len(todo), self._workers)):
+            view.background_e = image      # the cached property's value, computed in a worker
