@@ -139,15 +139,11 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
         plain = cand.take(~clipped)
         if (li.colour is not None and li.colour.dark is not None
                 and luma_difference(li.colour).carries_laser(li.colour.laser_channel)):
-            fit, failed = _fit_luma(li, rows, saturated, plain, max_width_px)
-            parts.append(fit)
-            plain = plain.take(failed)
-        if plain.line.size:
+            parts.append(_fit_luma(li, rows, saturated, plain, max_width_px))
+        else:
             uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-            fit = _fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
-                             max_width_px, plain.prominence)
-            fit.pop("index")
-            parts.append(fit)
+            parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
+                                    max_width_px, plain.prominence))
     if clipped.any():
         wide = cand.take(clipped)
         fit = fit_clipped(li.colour, rows, wide.line, wide.pos,
@@ -173,25 +169,22 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
     return cols
 
 
-def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Unclipped candidates of a colour frame with a laser-off frame fitted on the luma difference
-    (:mod:`scanrig.laser.luma`), and the indices of those whose fit failed there (a camera whose
-    colour matrix subtracts the laser from green and blue leaves it little luma): those are fitted
-    on the colour difference instead."""
+def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> dict[str, np.ndarray]:
+    """Unclipped candidates of a colour frame with a laser-off frame, in which luma carries the
+    laser, fitted on the luma difference (:mod:`scanrig.laser.luma`). A candidate without a peak
+    there is not the laser (the colour difference rings beside printed edges): its fit fails and
+    it is dropped (on the rendered colour set 90 of 706 candidates per frame, none on the beam)."""
     luma = luma_difference(li.colour)
     uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-    fit = _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos,
-                     np.zeros(plain.line.size), luma.sigma_at(*uv), max_width_px, plain.prominence,
-                     luma.correlation(rows), luma.shot_slope(li.colour.laser_channel))
-    failed = np.ones(plain.line.size, bool)
-    failed[fit.pop("index")] = False
-    return fit, np.flatnonzero(failed)
+    return _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos,
+                      np.zeros(plain.line.size), luma.sigma_at(*uv), max_width_px, plain.prominence,
+                      luma.correlation(rows), luma.shot_slope(li.colour.laser_channel))
 
 
 def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, prominence,
                correlation=None, shot_slope=None) -> dict[str, np.ndarray]:
-    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped
-    (``index`` holds the input index of those kept). The windows are stacked candidate-minor,
+    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped.
+    The windows are stacked candidate-minor,
     ``(W, n)`` (see :mod:`scanrig.laser.fit`); the noise is white unless its ``correlation`` along
     the line is given (:func:`~scanrig.laser.fit.parameter_covariance`)."""
     half = int(np.ceil(3.0 * max_width_px))
@@ -216,7 +209,7 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, pr
         "line": line, "centre": pos + p[:, 1], "var": var, "sigma_px": np.sqrt(np.abs(var)),
         "peak": p[:, 0], "width_px": p[:, 2], "snr": p[:, 0] / noise,
         "saturated": np.zeros(line.size, bool) if sat is None else sat[half - 1 : half + 2].any(axis=0),
-        "prominence": prominence, "index": np.arange(line.size),
+        "prominence": prominence,
     }
     return {k: a[ok] for k, a in out.items()}
 
