@@ -19,6 +19,8 @@ tolerance, or no sample around); the sparse capsules (1,000-2,000 points, 5-15 m
 30-100 mm, 10-20 % outliers 20-250 sigma off: good points kept, outliers rejected, medians over
 ``--sparse-seeds``) and the spot demo's cloud (good points flagged); and the time to filter
 100 000 points (full run only). ``--sparse-only`` runs the sparse part alone.
+``--ghost-chains DRAWS`` only counts the fresh draws of the step at 20 and 40 % outliers whose
+sheets a chain of edge ghosts joins (:func:`ghost_chains`).
 
 Run ``python benchmarks/bench_filter.py`` (several minutes) or with ``--quick``.
 """
@@ -35,9 +37,11 @@ from scipy.spatial import cKDTree
 
 from scipy.interpolate import LinearNDInterpolator
 
+from scanrig.surface.charts import MIN_CHART_POINTS, estimate_normals, split_charts
 from scanrig.surface.filter import filter_points, project_on_surface
 from scanrig.surface.robust_fit import FitSettings
 from scanrig.surface.sampling_need import sampling_need
+from scanrig.surface.sheets import split_sheets
 
 SIGMA = 0.01
 STEP_H = 0.2
@@ -230,6 +234,34 @@ def step_width(result, n_side):
     return width / (2.0 / (n_side - 1))
 
 
+def ghost_chains(draws, n_side=64, fractions=(0.2, 0.4)):
+    """Count the fresh draws of the protocol's step whose sheets a chain of edge ghosts joins.
+
+    A chain joins the two levels into one sheet, which one smooth network then fits: a ramp of
+    5-7 spacings and the true points next to the step flagged. It is a property of the sheets
+    (:func:`~scanrig.surface.sheets.split_sheets`, no network), so it is counted on them: a draw
+    is chained when one chart's core holds ``MIN_CHART_POINTS`` true points of each level more
+    than three spacings from the edge. Draws: data seeds ``(s, 33)``, ``s < draws``, per fraction.
+    """
+    print(f"\nghost chains: step at {', '.join(f'{e:.0%}' for e in fractions)} outliers, {draws} draws each")
+    chained = []
+    for eps in fractions:
+        q = protocol_q(eps)
+        for seed in range(draws):
+            x, y, z, truth, bad, _ = sample("step", n_side, eps, np.random.default_rng([seed, 33]))
+            points = np.column_stack([x, y, z])
+            normals = estimate_normals(points)
+            charts = split_sheets(points, normals, split_charts(points, normals, max_points=4096, q=q),
+                                  q=q, cut=FitSettings().constants.r)
+            far = ~bad & (np.abs(edge_distance("step", x, y)) > 3 * 2.0 / (n_side - 1))
+            high = truth > STEP_H / 2
+            if any(min(np.sum(high[c.core[far[c.core]]]), np.sum(~high[c.core[far[c.core]]])) >= MIN_CHART_POINTS
+                   for c in charts):
+                chained.append((eps, seed))
+    print(f"{len(chained)} of {draws * len(fractions)} draws chained: "
+          + (", ".join(f"{e:.0%} seed {s}" for e, s in chained) or "none"))
+
+
 #: Sparse cells: (points, capsule radius m, mean spacing m, outlier fraction). The noise is
 #: SPARSE_SIGMA along the normal; outliers lie 20-250 noise sigmas off, either side.
 SPARSE_CELLS = ((1500, 0.06, 0.008, 0.10), (1000, 0.03, 0.005, 0.20), (2000, 0.10, 0.015, 0.20),
@@ -325,10 +357,15 @@ def main():
     parser.add_argument("--sparse-only", action="store_true",
                         help="only the sparse capsules and the spot demo's cloud, over --sparse-seeds")
     parser.add_argument("--sparse-seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--ghost-chains", type=int, default=0, metavar="DRAWS",
+                        help="only count the draws of the step (DRAWS per outlier fraction) chained by edge ghosts")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     if args.timing_only:
         timing(np.random.default_rng([args.seed, 1]), args.seed)
+        return
+    if args.ghost_chains:
+        ghost_chains(args.ghost_chains)
         return
     if args.sparse_only:
         sparse_benchmark(args.sparse_seeds)

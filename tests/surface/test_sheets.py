@@ -1,5 +1,7 @@
 """Charts holding a step are split into sheets fitted separately."""
 
+from pathlib import Path
+
 import numpy as np
 
 from scanrig.surface import filter_points
@@ -8,6 +10,8 @@ from scanrig.surface.filter import project_on_surface
 from scanrig.surface.sheets import sheet_labels, split_sheets
 
 from .conftest import FAST, SIGMA
+
+DATA = Path(__file__).parent / "data"
 
 STEP = 20 * SIGMA  # step height, metres
 N_SIDE = 48
@@ -140,6 +144,42 @@ def test_a_few_stray_points_of_a_sheet_do_not_claim_a_place():
     probe = np.column_stack([xy[[45, 46]] + 0.01, [0.3, -0.3]])  # heights do not matter
     assert np.all(claim.holds(probe))
     np.testing.assert_array_equal(claim.owner(np.array([[0.2, 0.5, 0.0], [0.8, 0.5, 0.0]])), [0, 1])
+
+
+def test_a_chain_of_edge_ghosts_does_not_join_the_levels():
+    # the benchmark's step at 20 % outliers (64 x 64, noise 0.01, step 0.2, outliers drawn with
+    # seed (71, 33)): three edge ghosts whose trimmed planes run up the step (slopes 1-2, the
+    # levels' 0-0.2) link low level, ghost, ghost, ghost, high level. Linked so, the chart was one
+    # sheet and its network drew a ramp 6.2 spacings wide; linked where the planes also agree in
+    # slope, it is two
+    noise, spacing = 0.01, 2.0 / 63
+    g = np.linspace(-1, 1, 64)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    points = np.column_stack([x, y, np.load(DATA / "step_ghost_chain.npy")])
+    edge = (x - 0.1 * y - 0.05) / np.hypot(1.0, 0.1)  # signed distance to the step's edge
+    upper = edge > 0
+    normals = estimate_normals(points)
+    charts = split_charts(points, normals, max_points=len(points), q=0.3)
+    assert len(charts) == 1
+    sheets = split_sheets(points, normals, charts, q=0.3, cut=4.0)
+    assert len(sheets) == 2
+    true = (np.abs(points[:, 2] - 0.2 * upper) <= 3 * noise) & (np.abs(edge) > 3 * spacing)
+    for sheet in sheets:
+        assert len(np.unique(upper[sheet.core[true[sheet.core]]])) == 1
+
+
+def test_a_crease_and_a_saddle_stay_one_sheet():
+    # where the plain links find one sheet, they are taken again with the planes agreeing in
+    # slope; the crease's faces (slopes -0.4 and 0.4) part by 3.4 noise sigmas one spacing from
+    # the point, below the cut of 4, and the saddle's planes turn slowly
+    rng = np.random.default_rng(9)
+    g = np.linspace(-1, 1, N_SIDE)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    for z in (0.4 * np.abs(x - 0.1), 0.5 * (x**2 - y**2)):
+        points = np.column_stack([x, y, z + rng.normal(0, SIGMA, len(z))])
+        normals = estimate_normals(points)
+        charts = split_charts(points, normals, max_points=len(points), q=0.25)
+        assert len(split_sheets(points, normals, charts, q=0.25, cut=4.0)) == len(charts)
 
 
 def test_the_filter_keeps_a_step_sharp_and_its_neighbours():
