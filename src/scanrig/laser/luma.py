@@ -3,8 +3,8 @@
 The signal of a coloured laser, the laser channel minus the mean of the two others, is in JPEG's
 YCbCr purely colour difference (``R − (G + B)/2 = 1.76 Cr − 0.71 Cb``): stored at half resolution
 (4:2:0) and quantised coarsely, it smears and shifts a beam 2-3 px wide (measured on the rendered
-colour set, ``benchmarks/bench_colour_stripes.py``: the beam on printed ink 0.19 px RMS off, the
-same in every noise draw; 0.11 px from luma). Luma keeps full resolution. Laser-on minus laser-off luma removes the lit scene as the
+colour set, ``benchmarks/bench_colour_stripes.py``, the beam on printed ink: median error 0.13 px,
+the same in every noise draw; from luma 0.06 px). Luma keeps full resolution. Laser-on minus laser-off luma removes the lit scene as the
 colour difference does, so with a laser-off frame the unclipped candidates are fitted on it;
 without one, luma keeps the scene's texture and the colour difference is fitted instead.
 
