@@ -7,6 +7,8 @@ a naive baseline measured in the same run:
   every pixel (the obvious way to integrate pixels);
 * laser frame: rendering only the window the trace can touch (plus fast full-frame noise) vs
   re-rendering the whole frame with the laser;
+* stripe frame (the demo's sweep of 100 upright sheets, every tenth; one camera): sub-pixel rays
+  only in the window's pixels the laser may light vs in every pixel of the window;
 * session (3 cameras, spot, default scene, PNG files written): 2 worker processes vs 1.
 
 ``--quick`` shrinks the baselines and the session (frames and times are reported as measured).
@@ -23,8 +25,15 @@ import time
 
 import numpy as np
 
-from scanrig.sim import CameraView, default_rig, load_scene, raster_poses, simulate_session, trace_laser
-
+from scanrig.sim import (
+    CameraView,
+    default_rig,
+    load_scene,
+    raster_poses,
+    simulate_session,
+    trace_laser,
+)
+from scanrig.sim.render import _subpixel_samples
 
 _CPU: dict = {}   # figure -> CPU seconds of this process (a load-independent view of one core)
 
@@ -92,7 +101,28 @@ def main() -> None:
         * view.sensor.e_per_radiance, rng), repeat=n_base)
     rows.append(("laser frame (spot, 1 camera)", t_frame, 0.020, "full-frame laser render", t_naive))
 
-    # 3. whole session
+    # 3. stripe frame: trace + one camera's frame, over the demo's sweep
+    sheets = raster_poses(scene.laser, scene.center_m, scene.radius_m, 100, "stripe")[::25 if args.quick else 10]
+
+    def stripe_frames():
+        for pose in sheets:
+            view.frame(trace_laser(pose, scene.laser, scene), rng)
+
+    def every_window_pixel():                # the laser's radiance at all sub-pixel samples of the window
+        for pose in sheets:
+            trace = trace_laser(pose, scene.laser, scene)
+            mask, u0, v0 = view.window_mask(trace)
+            rows, cols = np.nonzero(mask)
+            view.laser_radiance(_subpixel_samples(np.column_stack([cols + u0, rows + v0]).astype(float), s), trace)
+
+    name = "stripe frame (demo sweep, 1 camera)"
+    t_stripe = _timed(stripe_frames, repeat=1 if args.quick else 3, cpu_key=name) / len(sheets)
+    _CPU[name] /= len(sheets)
+    t_every = _timed(every_window_pixel, cpu_key="every window pixel") / len(sheets)
+    _CPU["every window pixel"] /= len(sheets)
+    rows.append((name, t_stripe, 1.0, "every window pixel", t_every))
+
+    # 4. whole session
     n_frames = 60 if args.quick else 500
     out = tempfile.mkdtemp(prefix="bench_sim_")
     try:
@@ -113,6 +143,8 @@ def main() -> None:
         print(f"{name:<38} {t:>8.3f}s {cpu:>9} {target_s:>8.3f}s {base_name + f' {t_base:.3f}s':>30} "
               f"{t_base / t:>13.1f}x")
     print("wall = elapsed time (other work on the machine slows it down); cpu = this process's CPU time")
+    print(f"stripe frame CPU: {_CPU[name]:.3f} s; the laser's radiance alone at every sub-pixel sample of the window: "
+          f"{_CPU['every window pixel']:.3f} s ({_CPU['every window pixel'] / _CPU[name]:.1f}x)")
 
 
 if __name__ == "__main__":
