@@ -115,12 +115,12 @@ def main() -> None:
             rows, cols = np.nonzero(mask)
             view.laser_radiance(_subpixel_samples(np.column_stack([cols + u0, rows + v0]).astype(float), s), trace)
 
-    name = "stripe frame (demo sweep, 1 camera)"
-    t_stripe = _timed(stripe_frames, repeat=1 if args.quick else 3, cpu_key=name) / len(sheets)
-    _CPU[name] /= len(sheets)
+    stripe_key = "stripe frame (demo sweep, 1 camera)"
+    t_stripe = _timed(stripe_frames, repeat=1 if args.quick else 3, cpu_key=stripe_key) / len(sheets)
+    _CPU[stripe_key] /= len(sheets)
     t_every = _timed(every_window_pixel, cpu_key="every window pixel") / len(sheets)
     _CPU["every window pixel"] /= len(sheets)
-    rows.append((name, t_stripe, 1.0, "every window pixel", t_every))
+    rows.append((stripe_key, t_stripe, 1.0, "every window pixel", t_every))
 
     # 4. whole session
     n_frames = 60 if args.quick else 500
@@ -143,8 +143,8 @@ def main() -> None:
         print(f"{name:<38} {t:>8.3f}s {cpu:>9} {target_s:>8.3f}s {base_name + f' {t_base:.3f}s':>30} "
               f"{t_base / t:>13.1f}x")
     print("wall = elapsed time (other work on the machine slows it down); cpu = this process's CPU time")
-    print(f"stripe frame CPU: {_CPU[name]:.3f} s; the laser's radiance alone at every sub-pixel sample of the window: "
-          f"{_CPU['every window pixel']:.3f} s ({_CPU['every window pixel'] / _CPU[name]:.1f}x)")
+    print(f"stripe frame CPU: {_CPU[stripe_key]:.3f} s; the laser's radiance alone at every sub-pixel sample of the window: "
+          f"{_CPU['every window pixel']:.3f} s ({_CPU['every window pixel'] / _CPU[stripe_key]:.1f}x)")
 
 
 if __name__ == "__main__":
