@@ -14,6 +14,7 @@ import pytest
 
 from scanrig.calibration.bundle import Layout, Problem, State, pack
 from scanrig.calibration.cross_validation import RATIO_WARN
+from scanrig.calibration.flex_check import flex_step
 from scanrig.calibration.pipeline import calibrate
 from scanrig.calibration.summary import format_summary, summary_dict
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
@@ -48,6 +49,10 @@ def bent():
 
 def _cv_warnings(result) -> list[str]:
     return [w for w in result.warnings if "the odd and even views differ" in w]
+
+
+def _flex_warnings(result) -> list[str]:
+    return [w for w in result.warnings if w.startswith("target: the board looks bent")]
 
 
 def test_flex_shape_is_zero_at_the_grid_corners_and_sags_at_the_centre():
@@ -90,6 +95,15 @@ def test_bent_board_calibrated_as_flat_is_flagged(bent):
     assert all(r > RATIO_WARN for r in ratios.values()), ratios
     assert len(_cv_warnings(result)) == len(ratios)
     assert "board_flex_m" not in summary_dict(result)
+    # The one-step flex estimate from the flat solution finds the bend, and says so in one line.
+    flex, sigma = flex_step(result.bundle, RIGID)
+    print(f"one-step flex from the flat solution: {flex * 1000} ± {sigma * 1000} mm")
+    np.testing.assert_allclose(flex, FLEX_M, atol=FLEX_TOL_M)
+    (cx, cy), (sx, sy) = flex * 1000, sigma * 1000
+    assert _flex_warnings(result) == [
+        f"target: the board looks bent (sag at the centre along x {cx:.3f} ± {sx:.3f} mm, along y {cy:.3f} ± "
+        f"{sy:.3f} mm, estimated from the flat-board solution): set flex = true in target.toml to estimate the "
+        "bend, or use a flatter board"]
 
 
 @pytest.mark.slow
@@ -101,7 +115,7 @@ def test_flex_true_recovers_the_bend_and_the_warning_goes(bent):
           {name: round(r, 2) for name, r in ratios.items()})
     np.testing.assert_allclose(flex, FLEX_M, atol=FLEX_TOL_M)
     assert np.all(np.abs(flex - FLEX_M) < Z_MAX * sigma), (flex, sigma)
-    assert _cv_warnings(result) == []
+    assert _cv_warnings(result) == [] and _flex_warnings(result) == []
     summary = summary_dict(result)
     assert summary["format_version"] == 1
     np.testing.assert_array_equal(summary["board_flex_m"], flex)
@@ -118,6 +132,11 @@ def test_flat_board_with_flex_true_gives_zero_within_its_sigma():
     print(f"flat board, flex on: {flex * 1000} ± {sigma * 1000} mm")
     assert np.all(np.abs(flex) < Z_MAX * sigma), (flex, sigma)
     assert np.all(sigma < FLEX_TOL_M)
+    # Calibrated as flat: the one-step estimate agrees, and there is no warning.
+    rigid = calibrate(flat.obs, RIGID, "opencv5", cross_validate=False)
+    step, step_sigma = flex_step(rigid.bundle, RIGID)
+    assert np.all(np.abs(step) < Z_MAX * step_sigma), (step, step_sigma)
+    assert _flex_warnings(rigid) == []
 
 
 def test_flex_on_a_cube_is_refused():

@@ -15,6 +15,7 @@ import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
 from scanrig.calibration.cross_validation import CrossValidation, compare_halves, cross_validation_warnings
+from scanrig.calibration.flex_check import flex_warning
 from scanrig.calibration.init import MAD_TO_SIGMA, MIN_POINTS_PER_PLANE, Initialisation, initialise
 from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_constraints, undetermined_intrinsics,
                                                   with_known_intrinsics)
@@ -139,6 +140,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
         warnings += [line for cam in rig.cameras if cam.name in known
                      if (line := prior_pull_warning(cam, known[cam.name]))]
     warnings += dropped_view_warnings(init.dropped_views)
+    warnings += flex_warning(bundle, target)
     n_out = len(bundle.outliers)
     if n_out > 0.05 * len(obs):
         warnings.append(f"{n_out} of {len(obs)} detections rejected as outliers (> 5 %): check the detections")
