@@ -3,12 +3,12 @@
 The examples run in one scratch folder, in pipeline order (``VERB_ORDER``), so that an example
 finds what the earlier ones made (``scanrig simulate demo_session ...`` first, then calibrate,
 detect, reconstruct, ... on ``demo_session``), as a newcomer pasting them would. A verb whose
-example cannot run fails with the command line and its output.
+example cannot run fails with the command line and its output. The demo's example is the test
+session's shared quick demo run (``tests/quick_demo.py``), which writes a folder of its own.
 """
 
 import importlib
 import pkgutil
-import re
 import shlex
 import subprocess
 import sys
@@ -17,6 +17,7 @@ import pytest
 
 import scanrig.cli
 from scanrig.cli.main import VERB_ORDER, main
+from tests.quick_demo import DEMO_TIMEOUT_S, help_example
 
 #: Seconds one example may take (the simulate example renders a whole session).
 EXAMPLE_TIMEOUT_S = 1800
@@ -29,13 +30,6 @@ def _verbs() -> list[str]:
     return sorted(found, key=lambda n: (rank.get(n, len(rank)), n))
 
 
-def _example(verb: str) -> str:
-    doc = importlib.import_module(f"scanrig.cli.{verb}").command.__doc__ or ""
-    match = re.search(r"^\s*Example:\s*(scanrig .+?)\s*$", doc, re.MULTILINE)
-    assert match, f"scanrig {verb}: the docstring has no 'Example: scanrig ...' line"
-    return match.group(1)
-
-
 VERBS = _verbs()
 
 
@@ -44,7 +38,7 @@ def test_help_shows_an_example(verb, capsys):
     assert main([verb, "--help"]) == 0
     out = capsys.readouterr().out
     assert "Example:" in out
-    assert _example(verb).split()[1] == verb
+    assert help_example(verb).split()[1] == verb
 
 
 @pytest.fixture(scope="module")
@@ -53,10 +47,16 @@ def workspace(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(DEMO_TIMEOUT_S)   # the demo's waits for the shared quick demo
 @pytest.mark.parametrize("verb", VERBS)
-def test_example_runs_as_written(verb, workspace):
-    command = _example(verb)
-    run = subprocess.run([sys.executable, "-m", "scanrig", *shlex.split(command)[1:]], cwd=workspace,
+def test_example_runs_as_written(verb, workspace, request):
+    command = help_example(verb)
+    if verb == "demo":
+        demo = request.getfixturevalue("quick_demo").example
+        assert demo.command == command
+        demo.check()
+        return
+    run = subprocess.run([sys.executable, "-m", "scanrig", *shlex.split(command)[1:]], check=False, cwd=workspace,
                          capture_output=True, text=True, timeout=EXAMPLE_TIMEOUT_S)
     assert run.returncode == 0, (f"the example of `scanrig {verb} --help` does not run as written:\n  {command}\n"
                                  f"exit {run.returncode}\n{run.stderr[-3000:]}")

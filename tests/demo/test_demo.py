@@ -1,5 +1,6 @@
-"""``scanrig demo --quick`` end to end: every stage runs, the summary's figures are the files' figures,
-and the demo, ``scanrig evaluate`` and the report quote one accuracy."""
+"""``scanrig demo --quick`` end to end, as its ``--help`` example runs it: every stage runs, the
+summary's figures are the files' figures, and the demo, ``scanrig evaluate`` and the report quote
+one accuracy. The run is the test session's shared one (``tests/quick_demo.py``)."""
 
 import re
 
@@ -13,48 +14,56 @@ from scanrig.demo import (
     run_demo,
 )
 from scanrig.errors import InputError
+from tests.quick_demo import DEMO_TIMEOUT_S
 
 #: Quick run: 4 cube poses, 12 stripe sheets, fx ~2200 px at ~1 m (1 px ~ 0.45 mm across the line
 #: of sight). A calibration from 4 poses leaves camera-pose errors of up to a few millimetres (its
 #: summary's standard deviations), so 2 mm RMS against the truth is what a working pipeline stays
 #: below; a wrong world frame, a mismatched camera or an unrejected reflection gives centimetres.
 QUICK_RMS_BOUND_MM = 2.0
-#: rig.toml stores the calibration RMS rounded to 6 decimals.
-RMS_ROUNDING_PX = 1e-6
 #: An upright sheet crosses the scene from the floor to the top of the parts: several hundred scan
-#: lines in each camera (~250 points per sheet pass the 0.1 mm precision cut, seed 0). A sheet
-#: fanned sideways, edge-on to the cameras, gave ~30; 100 per sheet is the floor of a sweep that works.
+#: lines in each camera (3126 points from the 12 sheets pass the 0.1 mm precision cut, seed 1). A
+#: sheet fanned sideways, edge-on to the cameras, gave ~30; 100 per sheet is the floor of a sweep
+#: that works.
 MIN_POINTS_PER_SHEET = 100
+#: rig.toml stores the calibration RMS rounded to 6 decimals; the summary prints it to 4.
+RMS_ROUNDING_PX, PRINTED_RMS_ROUNDING_PX = 0.5e-6, 0.5e-4
+#: The demo's stages, in the order its table lists them.
+STAGES = ("simulate calibration", "calibrate", "scan", "detect", "reconstruct", "filter", "evaluate", "inspect",
+          "report")
+
+
+def _figure(rows: dict[str, list[str]], name: str, unit: str) -> str:
+    """The number of the summary's figure ``name``, as printed (its ``unit`` removed)."""
+    value = rows[name][0]
+    assert value.endswith(unit), f"{name}: {value!r} is not in {unit!r}"
+    return value.removesuffix(unit).strip()
 
 
 @pytest.fixture(scope="module")
-def quick_demo(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo") / "run"
-    return run_demo(out, seed=3, quick=True, workers=2)
-
-
-#: The quick demo renders, detects and reconstructs 12 full-size stripe frames and filters 1500
-#: points: 2-3 minutes on 2 idle cores, many more on a shared machine.
-DEMO_TIMEOUT_S = 1800
+def demo_run(quick_demo):
+    quick_demo.example.check()
+    return quick_demo.example
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(DEMO_TIMEOUT_S)
-def test_no_stage_fails_and_figures_match_the_files(quick_demo):
+def test_no_stage_fails_and_figures_match_the_files(demo_run):
     from scanrig.io.ply import read_ply
     from scanrig.io.rig_file import load_rig_info
     from scanrig.reconstruct.points import read_points
 
-    summary = quick_demo
-    assert [(s.name, s.status) for s in summary.stages if s.status != "ok"] == []
-    out = summary.out
-    assert summary.mode == "stripe"                                  # the default
+    rows, out = demo_run.table_rows(), demo_run.out
+    assert [(stage, rows[stage][0]) for stage in STAGES if rows[stage][0] != "ok"] == []
+    mode, seed = rows["mode, seed"][0].split(", ")
+    assert mode == "stripe" and f"--seed {seed}" in demo_run.command   # stripe is the default
     _, _, metadata = load_rig_info(out / "rig.toml")
-    assert summary.calibration_rms_px == pytest.approx(metadata["rms_px"], abs=RMS_ROUNDING_PX)
+    assert float(_figure(rows, "calibration RMS reprojection error", "px")) == pytest.approx(
+        metadata["rms_px"], abs=PRINTED_RMS_ROUNDING_PX + RMS_ROUNDING_PX)
     cloud, comments = read_points(out / "points.ply")
-    assert summary.n_points == len(cloud) >= MIN_POINTS_PER_SHEET * QUICK_STRIPE_FRAMES
-    assert "seed: 3" in comments
-    assert summary.rms_error_mm < QUICK_RMS_BOUND_MM
+    assert int(rows["points (points.ply)"][0]) == len(cloud) >= MIN_POINTS_PER_SHEET * QUICK_STRIPE_FRAMES
+    assert f"seed: {seed}" in comments
+    assert float(_figure(rows, "RMS distance to the truth, all points", "mm")) < QUICK_RMS_BOUND_MM
     _, faces, _ = read_ply(out / "mesh.ply")
     assert faces is not None and len(faces) > 0
     assert (out / "inspection" / "inspection.json").is_file() and (out / "inspection" / "inspection.html").is_file()
@@ -64,20 +73,44 @@ def test_no_stage_fails_and_figures_match_the_files(quick_demo):
 
 @pytest.mark.slow
 @pytest.mark.timeout(DEMO_TIMEOUT_S)
-def test_demo_evaluate_and_report_quote_one_accuracy(quick_demo, capsys):
+def test_demo_evaluate_and_report_quote_one_accuracy(demo_run, tmp_path, capsys):
     """The demo's RMS before and after the filter are what `scanrig evaluate` prints, with or without --rig."""
-    summary, out = quick_demo, quick_demo.out
+    rows, out = demo_run.table_rows(), demo_run.out
+    n_points = rows["points (points.ply)"][0]
+    rms_mm = _figure(rows, "RMS distance to the truth, all points", "mm")
+    surface_rms_mm = _figure(rows, "RMS distance to the truth, points the filter kept", "mm")
+    n_removed = rows["points the filter removed"][0]
     for extra in ([], ["--rig", str(out / "rig.toml")]):
-        assert main(["evaluate", str(out), "--histogram", str(out.parent / "h.png"), *extra]) == 0
+        assert main(["evaluate", str(out), "--histogram", str(tmp_path / "h.png"), *extra]) == 0
         printed = capsys.readouterr().out
-        assert f"{summary.n_points} points: RMS {summary.rms_error_mm:.4f} mm" in printed
+        assert f"{n_points} points: RMS {rms_mm} mm" in printed
         # The quick run filters a random 1500 of its points, and says so.
-        assert re.search(rf"after the filter: \d+ kept, {summary.n_filter_removed} removed"
-                         rf" \(the filter's input: {QUICK_FILTER_MAX_POINTS} of the {summary.n_points} points, "
-                         rf"drawn at random\): RMS {summary.surface_rms_error_mm:.4f} mm", printed)
+        assert re.search(rf"after the filter: \d+ kept, {n_removed} removed"
+                         rf" \(the filter's input: {QUICK_FILTER_MAX_POINTS} of the {n_points} points, "
+                         rf"drawn at random\): RMS {surface_rms_mm} mm", printed)
     verdict = (out / "report.html").read_text().split('<section id="summary">')[0]
-    assert f"RMS {summary.rms_error_mm:.4f} mm: the RMS of the distances of all {summary.n_points} points" in verdict
-    assert f"RMS {summary.surface_rms_error_mm:.4f} mm over the" in verdict
+    assert f"RMS {rms_mm} mm: the RMS of the distances of all {n_points} points" in verdict
+    assert f"RMS {surface_rms_mm} mm over the" in verdict
+
+
+def test_summary_tables_are_read_cell_by_cell(tmp_path, capsys, monkeypatch):
+    """The demo's printed tables, as the shared run's tests read them (``DemoRun.table_rows``)."""
+    from scanrig.demo import DemoSummary, StageRecord
+    from tests.quick_demo import WIDE_COLUMNS, DemoRun
+
+    summary = DemoSummary(tmp_path / "demo", "stripe", 1, DemoSettings(), [
+        StageRecord("calibrate", "ok", 9.1, "RMS 0.008 px, 951 target points"),
+        StageRecord("filter", "failed: EstimationError", 61.5, "too few points to fit a surface: 3 (at least 20)")],
+        calibration_rms_px=0.0084, n_points=3012, rms_error_mm=0.0621, wall_s=215.7)
+    monkeypatch.setattr("scanrig.demo.run_demo", lambda out, **kwargs: summary)
+    monkeypatch.setenv("COLUMNS", str(WIDE_COLUMNS))
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 1
+    rows = DemoRun("scanrig demo", tmp_path / "demo", 1, capsys.readouterr().out).table_rows()
+    assert rows["calibrate"] == ["ok", "9.1", "RMS 0.008 px, 951 target points"]
+    assert rows["filter"][0] == "failed: EstimationError"
+    assert rows["points (points.ply)"] == ["3012"] and rows["mode, seed"] == ["stripe, 1"]
+    assert _figure(rows, "RMS distance to the truth, all points", "mm") == "0.0621"
+    assert rows["points the filter removed"] == ["not reached"]
 
 
 def test_settings_and_bad_input(tmp_path, capsys):

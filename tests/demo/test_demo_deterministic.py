@@ -1,35 +1,22 @@
 """Two demo runs with one seed write the same files, whatever the thread count and the workers.
 
-Each run is ``scanrig demo --quick`` in a process of its own (the thread counts of OpenMP,
-OpenBLAS, MKL and torch are fixed when a process starts): one with one thread and one worker,
-one with two of each. Every stage is compared: the rendered images through the detected corners,
-the calibration, the traces, the cloud, the filtered surface and its mesh.
+The runs are the test session's two quick demos (``tests/quick_demo.py``), each in a process of
+its own: the demo's help example with two workers and two threads per library, and the same with
+one worker and one thread. Every stage is compared: the rendered images through the detected
+corners, the calibration, the traces, the cloud, the filtered surface and its mesh.
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import pytest
 
-#: The demo's seed in both runs.
-SEED = 3
+from tests.quick_demo import DEMO_TIMEOUT_S
+
 #: Files compared byte for byte (rig.toml without the lines that say when it was written, the
 #: PLY files without the comment naming their rig.toml's path).
 FILES = ("calibration_report/corners.csv", "traces.parquet", "points.ply", "surface.ply", "mesh.ply")
 #: Starts of the rig.toml lines that record when it was written.
 DATE_LINES = ("date = ", "# written by")
-
-
-def _start(out, threads: int, workers: int) -> subprocess.Popen:
-    """``scanrig demo --quick`` in a process of its own with ``threads`` threads per library."""
-    env = os.environ | {name: str(threads) for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                                        "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")}
-    return subprocess.Popen([sys.executable, "-m", "scanrig", "demo", "--out", str(out), "--quick", "--seed",
-                             str(SEED), "--workers", str(workers)], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
 
 
 def _without_lines(text: str, starts: tuple[str, ...]) -> str:
@@ -46,12 +33,13 @@ def _ply_without_rig_path(path) -> bytes:
 
 
 @pytest.mark.slow
-def test_same_seed_same_files_with_one_or_two_threads_and_workers(tmp_path):
-    one, two = tmp_path / "one", tmp_path / "two"
-    runs = [_start(one, threads=1, workers=1), _start(two, threads=2, workers=2)]
-    for run in runs:
-        output = run.communicate()[0]
-        assert run.returncode == 0, output[-3000:]
+@pytest.mark.timeout(DEMO_TIMEOUT_S)
+def test_same_seed_same_files_with_one_or_two_threads_and_workers(quick_demo):
+    one, two = quick_demo.one_thread, quick_demo.example
+    one.check()
+    two.check()
+    assert "--workers 1" in one.command and "--workers" not in two.command   # the default: 2
+    one, two = one.out, two.out
     assert (one / "points.ply").stat().st_size > 1000
     assert _without_lines((one / "rig.toml").read_text(), DATE_LINES) == \
         _without_lines((two / "rig.toml").read_text(), DATE_LINES)

@@ -6,9 +6,14 @@ out (docs/contributing.md) are each reported as a skipped test with the page, li
 
 - ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
   red spot laser, 4 cube poses, 20 frames) copied into the page's folder.
-- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by a small
-  session like the demo's (a red stripe sweep of 8 frames, 8 cube poses), calibrated, detected and
-  reconstructed, at ``./FOLDER``.
+- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by a copy of the
+  test session's quick demo (``scanrig demo --out demo_run --quick --seed 1``, the demo's help
+  example: ``tests/quick_demo.py``) at ``./FOLDER``.
+- A ``scanrig simulate`` command that opens blocks of several pages, identically, runs once; each
+  of those pages gets a copy of the folder it wrote (the simulator is seeded: the copy is what the
+  command writes) and runs the rest of its block.
+- ``benchmarks/`` is the repository's (a link in the page's folder): a reader runs the benchmarks
+  from the clone's root.
 - Rules: installing (``python3 -m venv``, ``. .venv/bin/activate``, ``pip install``) is left out
   (the test runs in the installed environment), and so is ``python -m pytest`` (this test is part
   of that run).
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -34,10 +40,6 @@ RULES = {
 }
 #: The small simulated session that stands in for a real rig's (``SESSION``).
 SMALL_SESSION = ["scanrig", "simulate", "{out}", "--frames", "20", "--shots", "4", "--seed", "1"]
-#: The stand-in for a slow block's session, like the demo's: a stripe sweep, calibrated as the demo
-#: calibrates (8 poses of the cube), detected and reconstructed.
-STAND_IN = [["scanrig", "simulate", "{out}", "--mode", "stripe", "--frames", "8", "--shots", "8", "--seed", "1"],
-            ["scanrig", "calibrate", "{out}"], ["scanrig", "detect", "{out}"], ["scanrig", "reconstruct", "{out}"]]
 #: Seconds one block may take (the whole real-rig tutorial, its small session included, took 165 s at
 #: load average 20 on 2 cores).
 BLOCK_TIMEOUT_S = 600
@@ -80,7 +82,8 @@ def _plan(page: Path) -> tuple[list[tuple[Block, str, str | None]], list[tuple[s
                       if line.strip() and not line.startswith("#")), "")
         if skip is not None:
             reason, stand_in = skip
-            skipped.append((block.where, reason + (f", stand-in ./{stand_in}" if stand_in else ""), first))
+            skipped.append((block.where, reason + (f", stand-in ./{stand_in}: a copy of the quick demo" if stand_in else ""),
+                            first))
             to_run.append((block, "", stand_in))
             continue
         script, left_out = runnable_script(block)
@@ -91,9 +94,21 @@ def _plan(page: Path) -> tuple[list[tuple[Block, str, str | None]], list[tuple[s
     return to_run, skipped
 
 
+def _shared_simulations(plans) -> set[str]:
+    """The ``scanrig simulate OUT ...`` lines that open blocks of two or more pages."""
+    pages_of: dict[str, set[Path]] = {}
+    for page, (to_run, _) in plans.items():
+        for _, script, _ in to_run:
+            first = script.partition("\n")[0].strip()
+            if re.match(r"scanrig simulate [\w.-]+ ", first) and not re.search(r"[;&|<>$`]", first):
+                pages_of.setdefault(first, set()).add(page)
+    return {line for line, pages in pages_of.items() if len(pages) > 1}
+
+
 PLANS = {page: _plan(page) for page in PAGES}
 RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if any(script for _, script, _ in to_run)]
 SKIPPED = [item for _, skipped in PLANS.values() for item in skipped]
+SHARED_SIMULATIONS = _shared_simulations(PLANS)
 
 
 def _environment() -> dict[str, str]:
@@ -112,24 +127,28 @@ def _run(script: str, cwd: Path, where: str) -> None:
 
 
 class Sessions:
-    """The small simulated sessions, made once per test run when a page needs them."""
+    """The sessions several pages use, made once per test run when a page needs them."""
 
     def __init__(self, root: Path):
         self.root = root
-        self._raw = self._stand_in = None
+        self._raw = None
+        self._simulated: dict[str, Path] = {}
 
     def raw(self) -> Path:
+        """The small simulated session that stands for ``SESSION``."""
         if self._raw is None:
             self._raw = self.root / "raw"
             _run(" ".join(SMALL_SESSION).format(out=self._raw), self.root, "the small session")
         return self._raw
 
-    def stand_in(self) -> Path:
-        if self._stand_in is None:
-            self._stand_in = self.root / "stand-in"
-            for command in STAND_IN:
-                _run(" ".join(command).format(out=self._stand_in), self.root, "the stand-in session")
-        return self._stand_in
+    def simulated(self, command: str, where: str) -> Path:
+        """The folder that ``command`` (a line of :data:`SHARED_SIMULATIONS`) writes, run once."""
+        if command not in self._simulated:
+            cwd = self.root / f"simulated-{len(self._simulated)}"
+            cwd.mkdir()
+            _run(command, cwd, where)
+            self._simulated[command] = cwd / shlex.split(command)[2]
+        return self._simulated[command]
 
 
 @pytest.fixture(scope="module")
@@ -137,23 +156,37 @@ def sessions(tmp_path_factory):
     return Sessions(tmp_path_factory.mktemp("docs-sessions"))
 
 
-def run_page(page: Path, sessions: Sessions, workdir: Path) -> None:
-    """Run the command blocks of ``page`` in order in ``workdir`` (see the module docstring)."""
+def run_page(page: Path, sessions: Sessions, workdir: Path, stand_in_session: Path | None = None) -> None:
+    """Run the command blocks of ``page`` in order in ``workdir`` (see the module docstring);
+    ``stand_in_session`` is copied in for a block marked with a stand-in."""
     to_run, _ = PLANS[page] if page in PLANS else _plan(page)
     if any(re.search(r"\bSESSION\b", script) for _, script, _ in to_run):
         shutil.copytree(sessions.raw(), workdir / "SESSION")
+    if any(re.search(r"(^|\s)benchmarks/", script) for _, script, _ in to_run):
+        (workdir / "benchmarks").symlink_to(ROOT / "benchmarks", target_is_directory=True)
     for block, script, stand_in in to_run:
         if stand_in is not None:
-            shutil.copytree(sessions.stand_in(), workdir / stand_in)
-        elif script:
+            shutil.copytree(stand_in_session, workdir / stand_in)
+            continue
+        first, _, rest = script.partition("\n")
+        if first.strip() in SHARED_SIMULATIONS:
+            simulated = sessions.simulated(first.strip(), block.where)
+            shutil.copytree(simulated, workdir / simulated.name)
+            script = rest
+        if script.strip():
             _run(script, workdir, block.where)
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 @pytest.mark.parametrize("page", RUN_PAGES, ids=[str(p.relative_to(ROOT)) for p in RUN_PAGES])
-def test_command_blocks_run_in_order(page, sessions, tmp_path):
-    run_page(page, sessions, tmp_path)
+def test_command_blocks_run_in_order(page, sessions, tmp_path, request):
+    stand_in_session = None
+    if any(stand_in for _, _, stand_in in PLANS[page][0]):
+        demo = request.getfixturevalue("quick_demo").example
+        demo.check()
+        stand_in_session = demo.out
+    run_page(page, sessions, tmp_path, stand_in_session)
 
 
 @pytest.mark.parametrize("where, reason, command", SKIPPED, ids=[f"{w} {r}" for w, r, _ in SKIPPED])
@@ -174,3 +207,15 @@ def test_marks_are_known():
     for page in PAGES:
         for block in blocks(page):
             block.skip()   # raises ValueError naming the page and line
+
+
+def test_a_simulation_that_opens_blocks_of_two_pages_is_shared(tmp_path):
+    """Only a ``scanrig simulate`` line that opens a block on two or more pages, word for word, runs once."""
+    texts = {"a.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\nscanrig detect tt\n```\n",
+             "b.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\n```\n",
+             "c.md": "```bash\nscanrig simulate tt --frames 3 --seed 1\n```\n"
+                     "```bash\nscanrig detect tt\nscanrig simulate tt --frames 2 --seed 1\n```\n"}
+    for name, text in texts.items():
+        (tmp_path / name).write_text(text)
+    plans = {tmp_path / name: _plan(tmp_path / name) for name in texts}
+    assert _shared_simulations(plans) == {"scanrig simulate tt --frames 2 --seed 1"}
