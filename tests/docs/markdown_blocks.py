@@ -5,9 +5,9 @@ does not show on a rendered page)::
 
     <!-- docs-test: skip real-hardware -->      needs cameras, a pan-tilt head or a printer
     <!-- docs-test: skip slow -->               runs for minutes; covered by its own test
-    <!-- docs-test: skip slow; stand-in demo --> not run; the test puts a small processed
-                                                 simulated session at ./demo so the blocks after
-                                                 it run
+    <!-- docs-test: skip slow; stand-in demo --> not run; the test puts a copy of the quick
+                                                 demo's session at ./demo so the blocks after it
+                                                 run
 
 Every block tagged ``bash``, ``sh``, ``shell`` or ``console`` (only its ``$ `` lines) is a command
 block; a block that shows commands without running them (a synopsis with ``[--option]``, a
