@@ -108,11 +108,12 @@ def run_quick_demo(folder: Path) -> QuickDemo:
     QuickDemo
     """
     example = help_example("demo")
-    assert "--quick" in example.split(), f"the demo's help example is not a quick run: {example}"
+    words = shlex.split(example)
+    assert "--quick" in words, f"the demo's help example is not a quick run: {example}"
+    out_name = words[words.index("--out") + 1]
     commands = {"example": example, "one_thread": f"{example} --workers 1"}
     threads = {"example": 2, "one_thread": 1}
     started = {name: _start(command, folder / name, threads[name]) for name, command in commands.items()}
-    out_name = shlex.split(example)[shlex.split(example).index("--out") + 1]
     runs = {}
     for name, process in started.items():
         output = process.communicate(timeout=DEMO_TIMEOUT_S)[0]
