@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from scanrig.errors import FileFormatError
-from scanrig.sim.calibration_shots import (calibration_sensor, default_target, target_scene,
-                                          write_calibration)
-from scanrig.sim.render import CameraView
+from scanrig.sim.calibration_shots import default_target, write_calibration
 from scanrig.sim.scene_file import load_scene_file
 
 from .conftest import plane_scene, small_rig
-from .test_targets_render import CORNER_RMS_TOL_PX, _camera
+from .test_targets_render import (
+    CORNER_RMS_TOL_PX,
+    corner_rms_px,
+    tilted_chessboard_corners,
+)
 
 #: Injected bend (c_x, c_y), metres: large enough that the flat board's corners miss by several
 #: times the corner tolerance in the view below.
@@ -49,32 +51,11 @@ def test_scene_file_reads_board_flex(tmp_path: Path):
 @pytest.mark.slow
 def test_bent_board_is_rendered_bent():
     """Chessboard corners found in the render lie at the projections of the bent board's corners."""
-    import cv2
-    from scipy.spatial.transform import Rotation
-
-    from scanrig.geometry import RigidTransform
-
-    cam = _camera()
-    room = replace(plane_scene(), board_flex_m=FLEX_M)
+    cam, pose, corners = tilted_chessboard_corners(replace(plane_scene(), board_flex_m=FLEX_M))
     target = default_target("chessboard")
-    board = target.boards[0]
-    w, h = board.size_m
-    view_dir = -cam.cam_from_world.inverse().R[:, 2]
-    R = (Rotation.from_rotvec([0.35, 0.1, 0.0]) * Rotation.align_vectors([-view_dir], [[0, 0, 1.0]])[0]).as_matrix()
-    pose = RigidTransform(R, -R @ [w / 2, h / 2, 0.0])
-    sensor = calibration_sensor(room)
-    img = sensor.expose(CameraView(cam, target_scene(target, pose, room), sensor).background_e,
-                        np.random.default_rng(12))
-    found, corners = cv2.findChessboardCornersSB(img, (9, 6), flags=cv2.CALIB_CB_ACCURACY)
-    assert found
-    corners = corners.reshape(-1, 2)
     bent = target.points_target + target.flex_directions(target.point_ids) @ np.array(FLEX_M)
-    rms = {}
-    for name, points in (("bent", bent), ("flat", target.points_target)):
-        truth = cam.project(pose.apply(points))
-        nearest = np.linalg.norm(corners[:, None] - truth[None], axis=2).argmin(axis=1)
-        assert len(set(nearest)) == len(truth)
-        rms[name] = float(np.sqrt(((corners - truth[nearest]) ** 2).sum(axis=1).mean()))
+    rms = {name: corner_rms_px(corners, cam.project(pose.apply(points)))
+           for name, points in (("bent", bent), ("flat", target.points_target))}
     print(f"corner RMS against the bent board {rms['bent']:.4f} px, against the flat one {rms['flat']:.4f} px")
     assert rms["bent"] < CORNER_RMS_TOL_PX
     assert rms["flat"] > 3 * CORNER_RMS_TOL_PX

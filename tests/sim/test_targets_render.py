@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanrig.geometry import Camera
-from scanrig.sim.calibration_shots import (calibration_sensor, default_target, random_pose, target_scene)
+from scanrig.geometry import Camera, RigidTransform
+from scanrig.sim.calibration_shots import (
+    calibration_sensor,
+    default_target,
+    random_pose,
+    target_scene,
+)
 from scanrig.sim.render import CameraView
 from scanrig.sim.rigs import look_at
 
@@ -21,18 +26,24 @@ def _camera(width=640, height=512, fx=1100.0, dist=STRONG_DIST) -> Camera:
     return Camera("c", "opencv5", params, width, height, look_at((0.05, -0.45, 0.35), (0.0, 0.0, 0.0)))
 
 
-def test_chessboard_corners_are_found_at_their_true_projections():
+def tilted_chessboard_corners(room) -> tuple[Camera, RigidTransform, np.ndarray]:
+    """Render the default chessboard in ``room``, facing :func:`_camera` tilted ~20 degrees (its z,
+    into the print, pointing away from the camera), and find its corners.
+
+    Returns
+    -------
+    camera : Camera
+    target_pose : RigidTransform
+        World from target.
+    corners_px : ndarray of shape (54, 2)
+        ``findChessboardCornersSB`` (accuracy flag) corners, pixels.
+    """
     import cv2
     from scipy.spatial.transform import Rotation
 
-    from scanrig.geometry import RigidTransform
-
     cam = _camera()
-    room = plane_scene()
     target = default_target("chessboard")
-    board = target.boards[0]
-    # board facing the camera (its z, into the print, pointing away from it), tilted 20 degrees
-    w, h = board.size_m
+    w, h = target.boards[0].size_m
     view_dir = -cam.cam_from_world.inverse().R[:, 2]
     R = (Rotation.from_rotvec([0.35, 0.1, 0.0]) * Rotation.align_vectors([-view_dir], [[0, 0, 1.0]])[0]).as_matrix()
     pose = RigidTransform(R, -R @ [w / 2, h / 2, 0.0])
@@ -41,21 +52,28 @@ def test_chessboard_corners_are_found_at_their_true_projections():
                         np.random.default_rng(12))
     found, corners = cv2.findChessboardCornersSB(img, (9, 6), flags=cv2.CALIB_CB_ACCURACY)
     assert found
-    corners = corners.reshape(-1, 2)
-    truth = cam.project(pose.apply(board.points_board))
-    nearest = np.linalg.norm(corners[:, None] - truth[None], axis=2).argmin(axis=1)
-    assert len(set(nearest)) == len(truth)
-    rms = np.sqrt(((corners - truth[nearest]) ** 2).sum(axis=1).mean())
+    return cam, pose, corners.reshape(-1, 2)
+
+
+def corner_rms_px(corners_px: np.ndarray, truth_px: np.ndarray) -> float:
+    """RMS distance of each true corner to its nearest found corner, every true corner found once."""
+    nearest = np.linalg.norm(corners_px[:, None] - truth_px[None], axis=2).argmin(axis=1)
+    assert len(set(nearest)) == len(truth_px)
+    return float(np.sqrt(((corners_px - truth_px[nearest]) ** 2).sum(axis=1).mean()))
+
+
+def test_chessboard_corners_are_found_at_their_true_projections():
+    cam, pose, corners = tilted_chessboard_corners(plane_scene())
+    rms = corner_rms_px(corners, cam.project(pose.apply(default_target("chessboard").boards[0].points_board)))
     print(f"chessboard corner RMS: {rms:.4f} px")
     assert rms < CORNER_RMS_TOL_PX
 
 
 def test_cube_faces_are_distinguishable():
     """ArUco markers of the rendered cube decode to ids of at least two different faces."""
-    import cv2
-
     from dataclasses import replace
 
+    import cv2
     from scipy.spatial.transform import Rotation
 
     from scanrig.geometry import RigidTransform
