@@ -18,7 +18,8 @@ which has a hole: average precision of each criterion against the truly under-sa
 tolerance, or no sample around); the sparse capsules (1,000-2,000 points, 5-15 mm apart, radius
 30-100 mm, 10-20 % outliers 20-250 sigma off: good points kept, outliers rejected, medians over
 ``--sparse-seeds``) and the spot demo's cloud (good points flagged); and the time to filter
-100 000 points (full run only). ``--sparse-only`` runs the sparse part alone.
+100 000 points (full run only; ``--timing-only --points N`` times N points alone, with the peak
+memory). ``--sparse-only`` runs the sparse part alone.
 ``--ghost-chains DRAWS`` only counts the fresh draws of the step at 20 and 40 % outliers whose
 sheets a chain of edge ghosts joins (:func:`ghost_chains`).
 
@@ -29,6 +30,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
+import resource
 import time
 
 import numpy as np
@@ -353,7 +356,8 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--timing-only", action="store_true",
-                        help="only the 100 000-point timing, in a fresh process")
+                        help="only the timing (--points, default 100 000), in a fresh process")
+    parser.add_argument("--points", type=int, default=100_000, help="points of the timing's cloud")
     parser.add_argument("--sparse-only", action="store_true",
                         help="only the sparse capsules and the spot demo's cloud, over --sparse-seeds")
     parser.add_argument("--sparse-seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -362,7 +366,7 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     if args.timing_only:
-        timing(np.random.default_rng([args.seed, 1]), args.seed)
+        timing(np.random.default_rng([args.seed, 1]), args.seed, args.points)
         return
     if args.ghost_chains:
         ghost_chains(args.ghost_chains)
@@ -414,7 +418,7 @@ def main():
     sparse_benchmark(args.sparse_seeds)
     spot_benchmark(args.sparse_seeds)
     if not args.quick:
-        timing(np.random.default_rng([args.seed, 1]), args.seed)
+        timing(np.random.default_rng([args.seed, 1]), args.seed, args.points)
 
 
 def average_precision(score, label):
@@ -449,21 +453,25 @@ def need_benchmark(rng, seed, tolerance=0.002, noise=0.002):
         print(f"{name:32s} {average_precision(score, label):6.3f}")
 
 
-def timing(rng, seed):
-    """Wall time of the whole pipeline on 100 000 points of the simulated scan surface, with its
-    accuracy (at this density each of the five reflection blobs is ~2000 points, several charts
-    wide: no true surface is sampled under them)."""
-    n_side = 283
+def timing(rng, seed, n_points=100_000):
+    """Wall time of the whole pipeline on ``n_points`` points of the simulated scan surface, with
+    its accuracy (at 100 000 points each of the five reflection blobs is ~2000 points, several
+    charts wide: no true surface is sampled under them), the machine's load and the process's
+    peak resident memory (numpy and torch alike; the cloud's own arrays included)."""
+    n_side = max(283, int(np.ceil(np.sqrt(0.75 * n_points))) + 1)  # grid + a third jittered >= n_points
     x, y, z, truth, bad, offset = sample("scan", n_side, 0.1, rng)
-    points, bad, offset = np.column_stack([x, y, z])[:100_000], bad[:100_000], offset[:100_000]
+    points, bad, offset = np.column_stack([x, y, z])[:n_points], bad[:n_points], offset[:n_points]
+    load = os.getloadavg()[0]
     t0 = time.perf_counter()
     res = filter_points(points, rng=np.random.default_rng(seed))
     secs = time.perf_counter() - t0
     d = res.denoised
     err = d[:, 2] - SURFACES["scan"][0](d[:, 0], d[:, 1])
     far = bad & (np.abs(offset) >= 5 * SIGMA)
+    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB on Linux
     print(f"\n{len(points)} points, {len(res.charts)} charts, {torch.get_num_threads()} threads: "
-          f"{secs:.1f} s; denoised inliers {np.sqrt(np.mean(err[~bad] ** 2)) / SIGMA:.3f} sigma, "
+          f"{secs:.1f} s (load {load:.1f} -> {os.getloadavg()[0]:.1f}), peak memory {peak_gb:.2f} GB; "
+          f"denoised inliers {np.sqrt(np.mean(err[~bad] ** 2)) / SIGMA:.3f} sigma, "
           f"recall {np.mean(~res.inlier[far]):.3f}, FRR {np.mean(~res.inlier[~bad]):.4f}")
 
 

@@ -16,6 +16,7 @@ from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits,
 from scanrig.surface.sheets import split_sheets
 from scanrig.surface.sparse import SPARSE_CHART_POINTS, SUPPORT_POINTS, local_quadratic_scores
 from scanrig.surface.surroundings import surroundings_score
+from scanrig.surface.tiles import TILE_POINTS, filter_in_tiles, tile_margin
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
@@ -127,7 +128,9 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     charts) the points of smaller charts are judged by local robust quadratics against the
     noise learnt on the dense charts (``sigma_floor`` or ``point_sigma`` when given; see
     :mod:`scanrig.surface.sparse`), and their charts' networks are fitted by least squares on
-    the points kept, for projections only: they move no point.
+    the points kept, for projections only: they move no point. A cloud of more than
+    ``TILE_POINTS`` points is filtered in tiles with overlapping margins, one after the other, so
+    that memory is bounded by the tile (:mod:`scanrig.surface.tiles`).
 
     Parameters
     ----------
@@ -193,7 +196,23 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
             raise InputError("point_sigma must be finite and positive")
     device = _resolve_device(device)
     keep_freed_memory()
+    args = dict(q=q, settings=settings, max_chart_points=max_chart_points, sigma_floor=sigma_floor, device=device)
+    if len(points) <= TILE_POINTS:
+        return _filter_cloud(points, rng=rng, train_mask=train_mask, point_sigma=point_sigma, **args)
 
+    def filter_tile(work: np.ndarray, tile_rng: np.random.Generator) -> FilterResult:
+        return _filter_cloud(points[work], rng=tile_rng, **args,
+                             train_mask=None if train_mask is None else train_mask[work],
+                             point_sigma=None if point_sigma is None else point_sigma[work])
+
+    return filter_in_tiles(points, filter_tile, rng=rng, max_points=TILE_POINTS,
+                           margin=tile_margin(points, max_chart_points, rng))
+
+
+def _filter_cloud(points: np.ndarray, *, rng: np.random.Generator, q: float, settings: FitSettings,
+                  max_chart_points: int, sigma_floor: float, device: str, train_mask: np.ndarray | None,
+                  point_sigma: np.ndarray | None) -> FilterResult:
+    """:func:`filter_points` on checked input, the cloud at once."""
     normals = estimate_normals(points)
     r = settings.constants.r
     charts = split_sheets(points, normals, split_charts(points, normals, max_points=max_chart_points, q=q),

@@ -39,6 +39,7 @@ converges in far fewer epochs than descending every weight).
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -57,6 +58,11 @@ HUBER_K = 1.345  # Huber's cut-off in units of sigma: 95 % Gaussian efficiency
 #: 0.85 s (the schedule's ~460 epochs of Python and dispatch, with 200 Hampel epochs) against
 #: 0.31 ms per padded point in large batches (100 000 points, 2 cores, measured).
 BATCH_OVERHEAD_POINTS = 2500
+#: Groups of charts that :func:`fit_charts_by_size` trains side by side (the cores of the 2-core
+#: machine the filter is benchmarked on); fixed, so that results do not depend on the threads.
+FIT_GROUPS = 2
+#: Fewest chart members (summed) that are dealt into ``FIT_GROUPS`` groups; below, one group.
+FIT_GROUPS_MIN_POINTS = 20_000
 
 
 @dataclass(frozen=True)
@@ -463,6 +469,15 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
     the fits are merged in input order. Each chart's fit is independent of its batch (same
     schedule, its own weights).
 
+    The charts of a cloud of at least ``FIT_GROUPS_MIN_POINTS`` members, sorted by size, are dealt
+    alternately into ``FIT_GROUPS`` groups of about equal work, the first drawing from ``rng``,
+    the others from generators spawned from it (a smaller cloud is one group: its results, on
+    which the protocol's figures were measured, stay those of one stream). With
+    torch's intra-op threads at ``FIT_GROUPS`` or more, the groups train at the same time, one
+    thread each (torch's threads set to 1 meanwhile): the networks' operations are too small to
+    keep two threads of one operation busy, and whole groups side by side are not. The
+    arithmetic is the same either way, so the result does not depend on the thread count.
+
     Parameters
     ----------
     uv : list of (n_c, 2) float arrays
@@ -483,6 +498,35 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
     """
     sizes = np.array([len(h) for h in z])
     floor = np.broadcast_to(np.asarray(sigma_floor, dtype=float), sizes.shape)
+    order = np.argsort(-sizes, kind="stable")
+    n_groups = FIT_GROUPS if sizes.sum() >= FIT_GROUPS_MIN_POINTS else 1
+    dealt = [np.sort(order[i::n_groups]) for i in range(n_groups) if i < len(order)]
+    generators = [rng, *rng.spawn(len(dealt) - 1)]
+
+    def fit_group(charts: np.ndarray, group_rng: np.random.Generator) -> ChartFits:
+        return _fit_batches([uv[c] for c in charts], [z[c] for c in charts], settings=settings,
+                            rng=group_rng, train_mask=None if train_mask is None else [train_mask[c] for c in charts],
+                            sigma_floor=floor[charts], device=device, overhead_points=overhead_points)
+
+    threads = torch.get_num_threads()
+    if len(dealt) > 1 and threads >= FIT_GROUPS and device == "cpu":
+        torch.set_num_threads(1)
+        try:
+            with ThreadPoolExecutor(len(dealt)) as pool:
+                parts = list(pool.map(fit_group, dealt, generators))
+        finally:
+            torch.set_num_threads(threads)
+    else:
+        parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
+    return concatenate_fits(parts, np.argsort(np.concatenate(dealt)))
+
+
+def _fit_batches(uv: list[np.ndarray], z: list[np.ndarray], *, settings: FitSettings, rng: np.random.Generator,
+                 train_mask: list[np.ndarray] | None, sigma_floor: np.ndarray, device: str,
+                 overhead_points: float) -> ChartFits:
+    """One group of charts of :func:`fit_charts_by_size` (arguments as there, ``sigma_floor``
+    (C,)), in batches of similar size one after the other; fits in the group's order."""
+    sizes = np.array([len(h) for h in z])
     groups = _size_batches(sizes, overhead_points)
     parts = []
     for group in groups:
@@ -496,7 +540,7 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
             if mask is not None:
                 mask[row, :sizes[c]] = train_mask[c]
         parts.append(fit_charts(uv_g, z_g, valid, settings=settings, rng=rng, train_mask=mask,
-                                sigma_floor=floor[group], device=device))
+                                sigma_floor=sigma_floor[group], device=device))
     return concatenate_fits(parts, np.argsort(np.concatenate(groups)))
 
 
