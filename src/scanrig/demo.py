@@ -334,7 +334,7 @@ class _Run:
         plan = {"planner": config.to_dict()} if config else {"sweep": "upright stripe sheets from the laser head"}
         store = ScanStore.create(self.out, self.true_rig.names, {"budget": s.budget, "seed": self.summary.seed,
                                                                  "laser_color": LASER_COLOR, **plan})
-        virtual = VirtualRig(self.scene, self.true_rig, self.rng_scan_noise)
+        virtual = VirtualRig(self.scene, self.true_rig, self.rng_scan_noise, workers=s.workers)
         virtual.set_laser(False)
         store.add_dark(virtual.grab())
         if config is not None:
