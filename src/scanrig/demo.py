@@ -40,7 +40,7 @@ MODES = ("stripe", "spot")
 STRIPE_FRAMES = 100
 QUICK_STRIPE_FRAMES = 12
 #: Default largest input of the surface filter (see DemoSettings.filter_max_points), and the quick run's.
-FILTER_MAX_POINTS = 6000
+FILTER_MAX_POINTS = 100_000
 QUICK_FILTER_MAX_POINTS = 1500
 #: The inspection's tolerance on |deviation| (the stripe reconstruction's precision cut).
 INSPECTION_TOLERANCE_M = 1e-4
