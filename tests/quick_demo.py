@@ -6,7 +6,7 @@ of its own (the thread counts of OpenMP, OpenBLAS, MKL and torch are fixed when 
 
 - ``example``: the demo's ``--help`` example exactly as written
   (``scanrig demo --out demo_run --quick --seed 1``), two threads per library. The demo's tests,
-  the help-example test and the docs test's stand-in session read it;
+  and the help-example test read it;
 - ``one_thread``: the same demo with ``--workers 1`` and one thread per library, which the
   determinism test compares with ``example`` file by file.
 

@@ -5,9 +5,6 @@ does not show on a rendered page)::
 
     <!-- docs-test: skip real-hardware -->      needs cameras, a pan-tilt head or a printer
     <!-- docs-test: skip slow -->               runs for minutes; covered by its own test
-    <!-- docs-test: skip slow; stand-in demo --> not run; the test puts a copy of the quick
-                                                 demo's session at ./demo so the blocks after it
-                                                 run
 
 Every block tagged ``bash``, ``sh``, ``shell`` or ``console`` (only its ``$ `` lines) is a command
 block; a block that shows commands without running them (a synopsis with ``[--option]``, a
@@ -29,7 +26,7 @@ SKIP_REASONS = ("real-hardware", "slow")
 
 _FENCE = re.compile(r"^(?P<indent>\s*)(?P<fence>`{3,}|~{3,})\s*(?P<lang>[\w+-]*)")
 _MARK = re.compile(r"^\s*<!--\s*docs-test:\s*(?P<mark>.*?)\s*-->\s*$")
-_SKIP = re.compile(r"^skip (?P<reason>[\w-]+)(?:; stand-in (?P<stand_in>[\w.-]+))?$")
+_SKIP = re.compile(r"^skip (?P<reason>[\w-]+)$")
 
 
 @dataclass(frozen=True)
@@ -51,8 +48,8 @@ class Block:
     def is_command_block(self) -> bool:
         return self.lang in SHELL_LANGUAGES
 
-    def skip(self) -> tuple[str, str | None] | None:
-        """``(reason, stand-in folder or None)`` if the block is marked to be skipped, else None.
+    def skip(self) -> str | None:
+        """The reason if the block is marked to be skipped, else None.
 
         Raises
         ------
@@ -64,8 +61,8 @@ class Block:
         match = _SKIP.match(self.mark)
         if match is None or match["reason"] not in SKIP_REASONS:
             raise ValueError(f"{self.where}: unknown mark <!-- docs-test: {self.mark} -->; marks are "
-                             f"'skip REASON' or 'skip REASON; stand-in FOLDER' with REASON one of {SKIP_REASONS}")
-        return match["reason"], match["stand_in"]
+                             f"'skip REASON' with REASON one of {SKIP_REASONS}")
+        return match["reason"]
 
     def commands(self) -> str:
         """The shell script of the block: a ``console`` block's ``$ `` lines, any other block whole."""

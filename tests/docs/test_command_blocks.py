@@ -6,12 +6,10 @@ out (docs/contributing.md) are each reported as a skipped test with the page, li
 
 - ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
   red spot laser, 4 cube poses, 20 frames) copied into the page's folder.
-- A block marked ``<!-- docs-test: skip REASON; stand-in FOLDER -->`` is replaced by a copy of the
-  test session's quick demo (``scanrig demo --out demo_run --quick --seed 1``, the demo's help
-  example: ``tests/quick_demo.py``) at ``./FOLDER``.
-- A ``scanrig simulate`` command that opens blocks of several pages, identically, runs once; each
-  of those pages gets a copy of the folder it wrote (the simulator is seeded: the copy is what the
-  command writes) and runs the rest of its block.
+- A ``scanrig simulate OUT ...`` or ``scanrig demo --out OUT`` command that opens blocks of
+  several pages, identically, runs once; each of those pages gets a copy of the folder it wrote
+  (the simulator and the demo are seeded: the copy is what the command writes) and runs the rest
+  of its block.
 - ``benchmarks/`` is the repository's (a link in the page's folder): a reader runs the benchmarks
   from the clone's root.
 - Rules: installing (``python3 -m venv``, ``. .venv/bin/activate``, ``pip install``) is left out
@@ -67,9 +65,9 @@ def runnable_script(block: Block) -> tuple[str, list[tuple[str, str]]]:
     return "\n".join(kept_lines), left_out
 
 
-def _plan(page: Path) -> tuple[list[tuple[Block, str, str | None]], list[tuple[str, str, str]]]:
-    """What to do for ``page``, block by block: (block, its script or '' when skipped, stand-in
-    folder or None); and what is skipped: (where, reason, command)."""
+def _plan(page: Path) -> tuple[list[tuple[Block, str]], list[tuple[str, str, str]]]:
+    """What to run of ``page``, block by block: (block, its script); and what is skipped:
+    (where, reason, command)."""
     to_run, skipped = [], []
     for block in blocks(page):
         if not block.is_command_block:
@@ -77,36 +75,35 @@ def _plan(page: Path) -> tuple[list[tuple[Block, str, str | None]], list[tuple[s
         try:
             skip = block.skip()
         except ValueError:
-            skip = ("unknown mark", None)   # test_marks_are_known fails on it
+            skip = "unknown mark"   # test_marks_are_known fails on it
         first = next((line.split("  #")[0].strip() for line in block.commands().splitlines()
                       if line.strip() and not line.startswith("#")), "")
         if skip is not None:
-            reason, stand_in = skip
-            skipped.append((block.where, reason + (f", stand-in ./{stand_in}: a copy of the quick demo" if stand_in else ""),
-                            first))
-            to_run.append((block, "", stand_in))
+            skipped.append((block.where, skip, first))
             continue
         script, left_out = runnable_script(block)
         for rule in dict.fromkeys(rule for rule, _ in left_out):   # one report per rule and block
             skipped.append((block.where, rule, "; ".join(c for r, c in left_out if r == rule)))
         if script:
-            to_run.append((block, script, None))
+            to_run.append((block, script))
     return to_run, skipped
 
 
 def _shared_simulations(plans) -> set[str]:
-    """The ``scanrig simulate OUT ...`` lines that open blocks of two or more pages."""
+    """The ``scanrig simulate OUT ...`` and ``scanrig demo --out OUT`` lines that open blocks of
+    two or more pages."""
     pages_of: dict[str, set[Path]] = {}
     for page, (to_run, _) in plans.items():
-        for _, script, _ in to_run:
+        for _, script in to_run:
             first = script.partition("\n")[0].strip()
-            if re.match(r"scanrig simulate [\w.-]+ ", first) and not re.search(r"[;&|<>$`]", first):
+            if (re.match(r"scanrig (simulate [\w.-]+ |demo --out [\w.-]+$)", first)
+                    and not re.search(r"[;&|<>$`]", first)):
                 pages_of.setdefault(first, set()).add(page)
     return {line for line, pages in pages_of.items() if len(pages) > 1}
 
 
 PLANS = {page: _plan(page) for page in PAGES}
-RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if any(script for _, script, _ in to_run)]
+RUN_PAGES = [page for page, (to_run, _) in PLANS.items() if to_run]
 SKIPPED = [item for _, skipped in PLANS.values() for item in skipped]
 SHARED_SIMULATIONS = _shared_simulations(PLANS)
 
@@ -147,7 +144,7 @@ class Sessions:
             cwd = self.root / f"simulated-{len(self._simulated)}"
             cwd.mkdir()
             _run(command, cwd, where)
-            self._simulated[command] = cwd / shlex.split(command)[2]
+            self._simulated[command] = cwd / _output_folder(command)
         return self._simulated[command]
 
 
@@ -156,18 +153,21 @@ def sessions(tmp_path_factory):
     return Sessions(tmp_path_factory.mktemp("docs-sessions"))
 
 
-def run_page(page: Path, sessions: Sessions, workdir: Path, stand_in_session: Path | None = None) -> None:
-    """Run the command blocks of ``page`` in order in ``workdir`` (see the module docstring);
-    ``stand_in_session`` is copied in for a block marked with a stand-in."""
+def _output_folder(command: str) -> str:
+    """The folder a :data:`SHARED_SIMULATIONS` line writes: ``OUT`` of ``scanrig simulate OUT ...``
+    or of ``scanrig demo --out OUT``."""
+    words = shlex.split(command)
+    return words[words.index("--out") + 1] if words[1] == "demo" else words[2]
+
+
+def run_page(page: Path, sessions: Sessions, workdir: Path) -> None:
+    """Run the command blocks of ``page`` in order in ``workdir`` (see the module docstring)."""
     to_run, _ = PLANS[page] if page in PLANS else _plan(page)
-    if any(re.search(r"\bSESSION\b", script) for _, script, _ in to_run):
+    if any(re.search(r"\bSESSION\b", script) for _, script in to_run):
         shutil.copytree(sessions.raw(), workdir / "SESSION")
-    if any(re.search(r"(^|\s)benchmarks/", script) for _, script, _ in to_run):
+    if any(re.search(r"(^|\s)benchmarks/", script) for _, script in to_run):
         (workdir / "benchmarks").symlink_to(ROOT / "benchmarks", target_is_directory=True)
-    for block, script, stand_in in to_run:
-        if stand_in is not None:
-            shutil.copytree(stand_in_session, workdir / stand_in)
-            continue
+    for block, script in to_run:
         first, _, rest = script.partition("\n")
         if first.strip() in SHARED_SIMULATIONS:
             simulated = sessions.simulated(first.strip(), block.where)
@@ -180,13 +180,8 @@ def run_page(page: Path, sessions: Sessions, workdir: Path, stand_in_session: Pa
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 @pytest.mark.parametrize("page", RUN_PAGES, ids=[str(p.relative_to(ROOT)) for p in RUN_PAGES])
-def test_command_blocks_run_in_order(page, sessions, tmp_path, request):
-    stand_in_session = None
-    if any(stand_in for _, _, stand_in in PLANS[page][0]):
-        demo = request.getfixturevalue("quick_demo").example
-        demo.check()
-        stand_in_session = demo.out
-    run_page(page, sessions, tmp_path, stand_in_session)
+def test_command_blocks_run_in_order(page, sessions, tmp_path):
+    run_page(page, sessions, tmp_path)
 
 
 @pytest.mark.parametrize("where, reason, command", SKIPPED, ids=[f"{w} {r}" for w, r, _ in SKIPPED])
@@ -210,12 +205,15 @@ def test_marks_are_known():
 
 
 def test_a_simulation_that_opens_blocks_of_two_pages_is_shared(tmp_path):
-    """Only a ``scanrig simulate`` line that opens a block on two or more pages, word for word, runs once."""
-    texts = {"a.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\nscanrig detect tt\n```\n",
-             "b.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\n```\n",
+    """Only a ``scanrig simulate`` or ``scanrig demo --out`` line that opens a block on two or more
+    pages, word for word, runs once; the folder it writes is the one named after it."""
+    texts = {"a.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\nscanrig detect tt\n```\n"
+                     "```bash\nscanrig demo --out d\nscanrig report d\n```\n",
+             "b.md": "```bash\nscanrig simulate tt --frames 2 --seed 1\n```\n```bash\nscanrig demo --out d\n```\n",
              "c.md": "```bash\nscanrig simulate tt --frames 3 --seed 1\n```\n"
                      "```bash\nscanrig detect tt\nscanrig simulate tt --frames 2 --seed 1\n```\n"}
     for name, text in texts.items():
         (tmp_path / name).write_text(text)
     plans = {tmp_path / name: _plan(tmp_path / name) for name in texts}
-    assert _shared_simulations(plans) == {"scanrig simulate tt --frames 2 --seed 1"}
+    assert _shared_simulations(plans) == {"scanrig simulate tt --frames 2 --seed 1", "scanrig demo --out d"}
+    assert [_output_folder(line) for line in sorted(_shared_simulations(plans))] == ["d", "tt"]
