@@ -30,6 +30,18 @@ def sphere_with_outliers(rng, n=1500, radius=0.05, eps=0.15):
     return direction * (radius + offset)[:, None], bad
 
 
+def assert_good_kept_and_outliers_rejected(points, bad, rng) -> np.ndarray:
+    """Judge every point by :func:`local_quadratic_scores` with the noise known; assert the
+    limits (>= 98 % of the good points kept, >= 95 % of the outliers rejected) and return the
+    support counts."""
+    residual, g, misfit, support = local_quadratic_scores(points, estimate_normals(points), np.arange(len(points)),
+                                                          rng=rng)
+    flagged = np.abs(residual) / np.maximum(NOISE * np.sqrt(1 + g), misfit) > R
+    assert np.mean(~flagged[~bad]) >= 0.98
+    assert np.mean(flagged[bad]) >= 0.95
+    return support
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_local_quadratics_keep_the_good_points_and_reject_far_outliers(seed):
     # the limits: >= 98 % of the good points kept, >= 95 % of the outliers >= 20 sigma rejected;
@@ -37,12 +49,7 @@ def test_local_quadratics_keep_the_good_points_and_reject_far_outliers(seed):
     # rejected 8-90 %
     rng = np.random.default_rng(seed)
     points, bad = sphere_with_outliers(rng)
-    residual, g, misfit, support = local_quadratic_scores(points, estimate_normals(points), np.arange(len(points)),
-                                                          rng=rng)
-    score = np.abs(residual) / np.maximum(NOISE * np.sqrt(1 + g), misfit)
-    flagged = score > R
-    assert np.mean(~flagged[~bad]) >= 0.98
-    assert np.mean(flagged[bad]) >= 0.95
+    support = assert_good_kept_and_outliers_rejected(points, bad, rng)
     assert np.all(support >= 0) and np.all(support <= QUADRIC_NEIGHBOURS)
 
 
@@ -80,11 +87,7 @@ def test_local_quadrics_judge_a_cylinder_sampled_at_half_its_radius(seed):
     # of such capsules
     rng = np.random.default_rng(seed)
     points, bad = thin_cylinder_with_outliers(rng)
-    residual, g, misfit, _ = local_quadratic_scores(points, estimate_normals(points), np.arange(len(points)),
-                                                    rng=rng)
-    flagged = np.abs(residual) / np.maximum(NOISE * np.sqrt(1 + g), misfit) > R
-    assert np.mean(~flagged[~bad]) >= 0.98
-    assert np.mean(flagged[bad]) >= 0.95
+    assert_good_kept_and_outliers_rejected(points, bad, rng)
 
 
 def test_local_quadratic_of_a_clean_plane_is_exact():
