@@ -53,7 +53,7 @@ NOISE_CELL = 64
 #: laser trace itself inflates its cell only a little (and the 5 × 5 cell median removes the rest).
 _NOISE_CLIP = 3.0
 #: MAD -> standard deviation for Gaussian noise.
-_MAD_TO_SIGMA = 1.4826
+MAD_TO_SIGMA = 1.4826
 #: Standard deviation of rounding to integers, DN.
 QUANTIZATION_SIGMA = 1.0 / np.sqrt(12.0)
 #: The photon-transfer fit of :func:`fit_noise_model`: clipped, reweighted iterations, the clip in
@@ -474,7 +474,7 @@ def correlated_noise_factor(signal: np.ndarray, rows: np.ndarray, sigma: float) 
     box = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
     twice_h = np.abs(2 * box[:, 3:-3] - box[:, :-6] - box[:, 6:]).ravel()
     median = float(np.partition(twice_h, twice_h.size // 2)[twice_h.size // 2]) / 2.0
-    return max(1.0, _MAD_TO_SIGMA * median / (np.sqrt(13.5) * sigma))
+    return max(1.0, MAD_TO_SIGMA * median / (np.sqrt(13.5) * sigma))
 
 
 def _noise_from_bands(rows: np.ndarray, high_pass: np.ndarray, shape, step: float, local: bool):
@@ -491,7 +491,7 @@ def _noise_from_bands(rows: np.ndarray, high_pass: np.ndarray, shape, step: floa
     median_abs = step * (k - 0.5 + (half - below_k) / (counts[k] - below_k))
     if k == 0:  # more than half exactly zero: the bin [0, ½) holds them
         median_abs = step * 0.5 * half / counts[0]
-    sigma = max(float(_MAD_TO_SIGMA * median_abs / np.sqrt(72.0)), QUANTIZATION_SIGMA)
+    sigma = max(float(MAD_TO_SIGMA * median_abs / np.sqrt(72.0)), QUANTIZATION_SIGMA)
     if not local:
         return sigma
     return sigma, _noise_cells(rows, magnitude, shape, sigma)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import QUANTIZATION_SIGMA, ColourFrames
+from scanrig.laser.image import MAD_TO_SIGMA, QUANTIZATION_SIGMA, ColourFrames
 
 #: Largest lag of the noise autocovariance, pixels: an 8-pixel JPEG block.
 MAX_LAG_PX = 8
@@ -38,7 +38,6 @@ _NOISE_SAMPLES = 40_000
 #: Pixels further than this many robust σ from their line's median (the laser, glints, edges the
 #: two exposures' JPEG treated differently) are left out of the autocovariance.
 _OUTLIER_SIGMAS = 5.0
-_MAD_TO_SIGMA = 1.4826
 #: The laser "added" to its channel where the difference exceeds this many robust σ.
 _LASER_SIGMAS = 10.0
 #: Luma weights of R, G, B (ITU-R BT.601, as JPEG and OpenCV).
@@ -130,7 +129,7 @@ def _laser_share(colour: ColourFrames, rows: slice, luma_lines: np.ndarray) -> f
     k = colour.laser_channel
     on, off = colour.image[rows, :, k], colour.dark[rows, :, k]
     added = on.astype(np.float32) - off
-    sigma = _MAD_TO_SIGMA * np.median(np.abs(added - np.median(added)))
+    sigma = MAD_TO_SIGMA * np.median(np.abs(added - np.median(added)))
     lit = ((added > _LASER_SIGMAS * max(float(sigma), QUANTIZATION_SIGMA)) & (on < colour.clip_level)
            & (off < colour.clip_level))
     return float(np.median(luma_lines[lit] / added[lit])) if lit.any() else float("nan")
@@ -152,7 +151,7 @@ def autocovariance(lines: np.ndarray, level: np.ndarray):
     import cv2
 
     d = lines - np.median(lines, axis=1, keepdims=True)
-    sigma = _MAD_TO_SIGMA * np.median(np.abs(d))
+    sigma = MAD_TO_SIGMA * np.median(np.abs(d))
     valid = np.abs(d) <= _OUTLIER_SIGMAS * max(sigma, QUANTIZATION_SIGMA)
     # ... and their neighbours up to MAX_LAG_PX along the line: a trace's flanks are not noise
     valid = cv2.erode(valid.view(np.uint8), np.ones((1, 2 * MAX_LAG_PX + 1), np.uint8),
