@@ -253,6 +253,13 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     Returns
     -------
     FitResult
+
+    Notes
+    -----
+    Between iterations a candidate carries only its parameters, cost, damping and normal equations
+    ``JᵀJ``, ``Jᵀr`` (``P² + P`` numbers), not its Jacobian and residuals: the working set is
+    compacted as candidates leave it without copying ``(P, M, n)`` arrays, and the Jacobian and
+    residuals of the result are evaluated once, at the solution.
     """
     if not minor:
         user_model = model
@@ -265,52 +272,70 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     lower = np.asarray(lower, float)[:, None]
     upper = np.asarray(upper, float)[:, None]
     w = None if mask.all() else mask.astype(np.float64)  # None: every pixel is fitted
-    n_par, n = p0.shape[1], p0.shape[0]
+    n_par = p0.shape[1]
     p = np.array(np.asarray(p0).T, dtype=float, order="C")  # (P, n)
     np.maximum(p, lower, out=p)  # (np.clip's Python wrapper costs more)
     np.minimum(p, upper, out=p)
+    # the working set: candidates still iterating, their data and state (views until one leaves)
+    idx = np.arange(p.shape[1])
+    ya, wa, pa = y, w, p
+    cost, hess, grad = _evaluate(model, pa, ya, wa, normal=True)
+    lam = np.full(idx.size, _LAMBDA0)
+    for _ in range(n_iter):
+        if idx.size == 0:
+            break
+        p_try = _damped_solve(hess, grad, lam)
+        p_try += pa
+        np.maximum(p_try, lower, out=p_try)
+        np.minimum(p_try, upper, out=p_try)
+        cost_try, hess_try, grad_try = _evaluate(model, p_try, ya, wa, normal=True)
+        better = cost_try < cost
+        converged = better & (cost - cost_try <= tol * cost)
+        lam = np.where(better, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
+        if better.all():
+            pa, cost, hess, grad = p_try, cost_try, hess_try, grad_try
+        else:
+            pa[:, better] = p_try[:, better]
+            cost[better] = cost_try[better]
+            hess[..., better] = hess_try[..., better]
+            grad[:, better] = grad_try[:, better]
+        stay = ~converged & (lam < 1e10)
+        if not stay.all():
+            p[:, idx] = pa
+            idx, ya, pa, cost, hess, grad, lam = (a[..., stay] for a in (idx, ya, pa, cost, hess, grad, lam))
+            wa = None if wa is None else wa[:, stay]
+    p[:, idx] = pa
+    r, jac = _evaluate(model, p, y, w)
+    cost = np.einsum("mn,mn->n", r, r)
+    info_inv = _spd_inverse(jac)
+    dof = mask.sum(axis=0) - n_par
+    return FitResult(p.T, info_inv, cost, dof, jac.transpose(2, 1, 0), r.T)
+
+
+def _evaluate(model, p: np.ndarray, y: np.ndarray, w: np.ndarray | None, normal: bool = False):
+    """Weighted residuals ``r (M, k)`` and Jacobian ``(P, M, k)`` of the candidate-minor ``model`` at
+    ``p (P, k)``, zero where ``w (M, k)`` is (None: every pixel fitted); with ``normal``, instead
+    the cost ``Σ r² (k,)`` and the normal equations ``JᵀJ (P, P, k)`` (lower triangle) and
+    ``Jᵀr (P, k)``."""
     mu, jac = model(p)
     r = y - mu
     if w is not None:
         jac *= w
         r *= w
-    cost = np.einsum("mn,mn->n", r, r)
-    lam = np.full(n, _LAMBDA0)
-    active = np.arange(n)
-    for _ in range(n_iter):
-        if active.size == 0:
-            break
-        if active.size == n:  # no copies while every candidate still iterates
-            ja, ra, pa, ya, wa, ca, la = jac, r, p, y, w, cost, lam
-        else:
-            ja, ra, pa, ya = (np.take(a, active, axis=-1) for a in (jac, r, p, y))
-            wa = None if w is None else np.take(w, active, axis=-1)
-            ca, la = cost[active], lam[active]
-        p_try = _marquardt_step(ja, ra, la)
-        p_try += pa
-        np.maximum(p_try, lower, out=p_try)
-        np.minimum(p_try, upper, out=p_try)
-        mu_try, jac_try = model(p_try)
-        r_try = ya - mu_try
-        if wa is not None:
-            jac_try *= wa
-            r_try *= wa
-        cost_try = np.einsum("mn,mn->n", r_try, r_try)
-        better = cost_try < ca
-        converged = better & (ca - cost_try <= tol * ca)
-        if active.size == n and better.all():
-            p, jac, r, cost = p_try, jac_try, r_try, cost_try
-        else:
-            idx = active[better]
-            p[:, idx] = p_try[:, better]
-            jac[..., idx] = jac_try[..., better]
-            r[:, idx] = r_try[:, better]
-            cost[idx] = cost_try[better]
-        lam[active] = np.where(better, la * _LAMBDA_DOWN, la * _LAMBDA_UP)
-        active = active[~converged & (lam[active] < 1e10)]
-    info_inv = _spd_inverse(jac)
-    dof = mask.sum(axis=0) - n_par
-    return FitResult(p.T, info_inv, cost, dof, jac.transpose(2, 1, 0), r.T)
+    if not normal:
+        return r, jac
+    return np.einsum("mn,mn->n", r, r), _gram(jac), np.einsum("imn,mn->in", jac, r)
+
+
+def _gram(jac: np.ndarray) -> np.ndarray:
+    """``JᵀJ`` ``(P, P, k)`` of the candidate-minor ``jac (P, M, k)``, lower triangle only (the
+    upper is left unset): row ``i`` is one contraction of ``jac[:i + 1]`` with ``jac[i]``, about
+    half the work of the full product."""
+    size, _, k = jac.shape
+    out = np.empty((size, size, k))
+    for i in range(size):
+        np.einsum("jmn,mn->jn", jac[: i + 1], jac[i], out=out[i, : i + 1])
+    return out
 
 
 #: From this many candidates on, the small symmetric systems are solved by a Cholesky factorisation
@@ -320,34 +345,32 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
 _UNROLLED_MIN = 16
 
 
-def _marquardt_step(jac: np.ndarray, r: np.ndarray, lam: np.ndarray) -> np.ndarray:
+def _damped_solve(hess: np.ndarray, grad: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """Levenberg–Marquardt step ``(P, k)``: the solution of ``(JᵀJ + λ diag(JᵀJ) + ε) δ = Jᵀr``
-    for the candidate-minor ``jac (P, M, k)``, ``r (M, k)``, ``lam (k,)``; a new array."""
-    n_par, _, k = jac.shape
+    for the normal equations ``hess (P, P, k)`` (lower triangle read) and ``grad (P, k)`` and
+    ``lam (k,)``; a new array."""
+    n_par, _, k = hess.shape
+    diag = hess.reshape(n_par * n_par, k)[:: n_par + 1]  # a view: the diagonals, (P, k)
+    damped = diag + (lam * diag + 1e-12 * diag.max(axis=0) + 1e-300)
     if k < _UNROLLED_MIN:  # (k, P, P) stacks for LAPACK
-        jt = jac.transpose(2, 0, 1)
-        hess = jt @ jac.transpose(2, 1, 0)
-        grad = jt @ r.T[:, :, None]
-        diag = hess.reshape(k, -1)[:, :: n_par + 1]  # a view: the diagonals, (k, P)
-        diag += lam[:, None] * diag + 1e-12 * diag.max(axis=1, keepdims=True) + 1e-300
-        return np.linalg.solve(hess, grad)[:, :, 0].T.copy()
-    hess = np.einsum("imn,jmn->ijn", jac, jac)  # (P, P, k): each entry one contiguous (k,) array
-    grad = np.einsum("imn,mn->in", jac, r)
-    diag = hess.reshape(n_par * n_par, -1)[:: n_par + 1]  # a view: the diagonals, (P, k)
-    diag += lam * diag + 1e-12 * diag.max(axis=0) + 1e-300
-    return _cholesky_solve(hess, grad)
+        low = np.tril(hess.transpose(2, 0, 1))
+        full = low + np.tril(low, -1).transpose(0, 2, 1)
+        full.reshape(k, -1)[:, :: n_par + 1] = damped.T
+        return np.linalg.solve(full, grad.T[:, :, None])[:, :, 0].T.copy()
+    return _cholesky_solve(hess, grad, damped)
 
 
-def _cholesky(h: np.ndarray):
-    """Lower Cholesky factors of a stack ``(P, P, n)`` of symmetric matrices, as nested lists
-    ``low[i][j]`` (j ≤ i) of ``(n,)`` arrays, and the reciprocals of the diagonal. A matrix that is
-    not positive definite gets NaN entries."""
+def _cholesky(h: np.ndarray, diag: np.ndarray | None = None):
+    """Lower Cholesky factors of a stack ``(P, P, n)`` of symmetric matrices (lower triangle read;
+    the diagonal from ``diag (P, n)`` when given), as nested lists ``low[i][j]`` (j ≤ i) of
+    ``(n,)`` arrays, and the reciprocals of the diagonal. A matrix that is not positive definite
+    gets NaN entries."""
     size = h.shape[0]
     low = [[None] * size for _ in range(size)]
     inv_diag = []
     with np.errstate(invalid="ignore", divide="ignore"):
         for j in range(size):
-            s = h[j, j]
+            s = h[j, j] if diag is None else diag[j]
             for k in range(j):
                 s = s - low[j][k] * low[j][k]
             d = np.sqrt(s)
@@ -361,11 +384,12 @@ def _cholesky(h: np.ndarray):
     return low, inv_diag
 
 
-def _cholesky_solve(h: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _cholesky_solve(h: np.ndarray, b: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
     """Solution ``x (P, n)`` of ``h x = b`` for a stack ``h (P, P, n)`` of symmetric positive
-    definite matrices and ``b (P, n)``; a new array."""
+    definite matrices (lower triangle read; the diagonal from ``diag (P, n)`` when given) and
+    ``b (P, n)``; a new array."""
     size, n = b.shape
-    low, inv_diag = _cholesky(h)
+    low, inv_diag = _cholesky(h, diag)
     z = []
     for i in range(size):  # L z = b
         s = b[i]
@@ -394,7 +418,7 @@ def _spd_inverse(jac: np.ndarray) -> np.ndarray:
         if ok.any():
             out[ok] = np.linalg.inv(h[ok])
         return out
-    h = np.einsum("imn,jmn->ijn", jac, jac)
+    h = _gram(jac)
     diag = h.reshape(size * size, n)[:: size + 1]
     out = np.empty((n, size, size))
     low, inv_diag = _cholesky(h)
