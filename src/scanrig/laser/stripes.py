@@ -19,12 +19,12 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.colour_fit import fit_clipped
+from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.luma import luma_difference
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
-from scanrig.laser.stripe_candidates import (LineCandidates, crossed_steeply, prominent, rank_on_lines,
-                                             strongest_per_line)
+from scanrig.laser.stripe_candidates import LineCandidates, crossed_steeply, prominent, strongest_per_line
 from scanrig.laser.traces import empty_table, make_table
 
 DIRECTIONS = ("auto", "rows", "columns")
@@ -82,7 +82,8 @@ def detect_stripe(
     pyarrow.Table
         One row per (line, peak) with the columns of ``traces.parquet`` (``kind = "stripe"``;
         ``line`` = full-frame row index where rows were scanned (then ``cov_vv = 0``) or column index
-        where columns were (then ``cov_uu = 0``); rank 0 = brightest peak of its line). Empty for a
+        where columns were (then ``cov_uu = 0``); rank 0 = the peak of its line on the longest continuous
+        trace, the most prominent among equals, :mod:`scanrig.laser.continuity`). Empty for a
         dark frame.
 
     Raises
@@ -127,7 +128,7 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
 
 def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.ndarray] | None:
     """Sub-pixel centres of the candidates of one scan direction (full-frame columns of the traces
-    table, ranked by prominence); None when there are none."""
+    table, ranked by continuity); None when there are none."""
     if cand.line.size == 0:
         return None
     rows = along == "rows"
@@ -164,7 +165,7 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
         cols.update(u=cols["line"] + float(li.origin[0]), v=centre + li.origin[1], cov_uu=zero, cov_vv=var)
         cols["line"] = cols["line"] + li.origin[0]
     cols["cov_uv"] = zero
-    cols["rank"] = rank_on_lines(cols["line"], cols.pop("prominence"))
+    cols["rank"] = rank_by_continuity(cols["line"], centre, cols.pop("prominence"))
     cols["line"] = cols["line"].astype(np.int32)
     return cols
 
