@@ -188,20 +188,23 @@ def test_prominence_table_and_erosion_match_the_windows_and_a_plain_loop(dtype, 
     pos = np.r_[0, 60, 1, 59, rng.integers(0, 61, n - 4)]  # the frame's edges included
     # most at one reach (the unclipped candidates), the others spread
     reach = np.where(rng.random(n) < 0.7, 7, rng.integers(1, 40, n))
+    box = peaks._box_sums_along(signal)  # the frame's box sums, in the signal's orientation
     windows = peaks._prominence_from_windows(signal, line, pos, reach)
-    table = peaks._prominence_from_table(signal, line, pos, reach)
-    erosion = peaks._prominence_from_erosion(signal, line, pos, reach)
+    windows_of_box = peaks._prominence_from_windows(None, line, pos, reach, box)
+    table = peaks._prominence_from_table(None, line, pos, reach, box)
+    erosion = peaks._prominence_from_erosion(box, line, pos, reach)
     far = 41  # beyond the frame its edge pixels repeat
     padded = np.pad(signal.astype(np.float64), ((1, 1), (far, far)), mode="edge")
-    box = sum(padded[i : i + 23, j : j + 61 + 2 * far - 2] for i in range(3) for j in range(3))
+    sums = sum(padded[i : i + 23, j : j + 61 + 2 * far - 2] for i in range(3) for j in range(3))
 
     def plain(k):
-        at = lambda x: box[line[k], x + far - 1]  # noqa: E731
+        at = lambda x: sums[line[k], x + far - 1]  # noqa: E731
         left = min(at(pos[k] - d) for d in range(1, reach[k] + 1))
         right = min(at(pos[k] + d) for d in range(1, reach[k] + 1))
         return at(pos[k]) - max(left, right), at(pos[k])
 
     expected = np.array([plain(k) for k in range(n)]).T
     np.testing.assert_allclose(windows, expected, atol=1e-3)
+    np.testing.assert_allclose(windows_of_box, expected, atol=1e-3)
     np.testing.assert_allclose(table, expected, atol=1e-3)
     np.testing.assert_allclose(erosion, expected, atol=1e-3)

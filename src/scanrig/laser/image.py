@@ -214,6 +214,32 @@ class LaserImage:
             return self.noise_model.sigma_at(u, v)
         return _cell_lookup(self.noise, NOISE_CELL, u, v)
 
+    @functools.cached_property
+    def box_sums(self) -> np.ndarray:
+        """:func:`padded_box_sums` of :attr:`signal`, computed once per frame for the candidate
+        search along rows and columns and their prominence."""
+        return padded_box_sums(self.signal)
+
+
+def padded_box_sums(signal: np.ndarray) -> np.ndarray:
+    """3 × 3 box sums of an image, DN, with one ring beyond its edges.
+
+    Parameters
+    ----------
+    signal : (H, W) array, DN
+
+    Returns
+    -------
+    (H + 2, W + 2) float32 array
+        The sums centred on rows −1 .. H and columns −1 .. W, the image's edge pixels repeated
+        beyond it. Exact for the signals of :func:`prepare_image`, whose values are multiples of
+        ½ DN far below 2**23.
+    """
+    import cv2
+
+    padded = cv2.copyMakeBorder(np.ascontiguousarray(signal), 2, 2, 2, 2, cv2.BORDER_REPLICATE)
+    return cv2.boxFilter(padded, cv2.CV_32F, (3, 3), normalize=False)[1:-1, 1:-1]
+
 
 def _cell_lookup(cells: np.ndarray, cell: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     hc, wc = cells.shape

@@ -23,11 +23,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import BG_CELL, NOISE_CELL, LaserImage
+from scanrig.laser.image import BG_CELL, NOISE_CELL, LaserImage, padded_box_sums
 
 _BLOCK_BITS = 2
 BLOCK = 1 << _BLOCK_BITS  # 4
@@ -197,7 +198,7 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
         return _empty()
     flagged = cv2.dilate(flagged, np.ones((3, 3), np.uint8))
     if np.count_nonzero(flagged) >= _WHOLE_FRAME_SHARE * flagged.size:
-        v, u, box = _maxima_of_frame(sig, flagged, along)
+        v, u, box = _maxima_of_frame(li.box_sums, flagged, along)
     else:
         v, u, box = _maxima_in_patches(sig, flagged, along)
     score = (box - 9.0 * li.background_at(u, v)) / (3.0 * li.noise_at(u, v))
@@ -248,15 +249,13 @@ def _maxima_in_patches(sig: np.ndarray, flagged: np.ndarray, along: str):
     return v[order], u[order], core[dv[order], du[order], k[order]]
 
 
-def _maxima_of_frame(sig: np.ndarray, flagged: np.ndarray, along: str):
+def _maxima_of_frame(box: np.ndarray, flagged: np.ndarray, along: str):
     """:func:`_maxima_in_patches` from whole-frame OpenCV filters, for frames flagged over a large
-    part (texture in a colour frame): the box sums of the frame padded by its edge pixels, compared
-    with their shifted views."""
+    part (texture in a colour frame): the frame's box sums ``box``
+    (:func:`~scanrig.laser.image.padded_box_sums`) compared with their shifted views."""
     import cv2
 
-    h, w = sig.shape
-    padded = cv2.copyMakeBorder(np.ascontiguousarray(sig), 2, 2, 2, 2, cv2.BORDER_REPLICATE)
-    box = cv2.boxFilter(padded, cv2.CV_32F, (3, 3), normalize=False)[1:-1, 1:-1]  # rows, columns -1 .. H, W
+    h, w = box.shape[0] - 2, box.shape[1] - 2
     core = box[1:-1, 1:-1]
     if along == "2d":
         shifts = [(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du]
@@ -357,8 +356,8 @@ _GATHER_COST = 6
 _EROSION_COST = 2
 
 
-def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
-                    reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach: np.ndarray,
+                    box_sums: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Prominence of candidates along their scan lines (axis 1 of ``signal``), DN of the 3 × 3 box sum.
 
     The box sum at ``pos`` minus the higher of the two lowest box sums on its left and on its
@@ -375,6 +374,9 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
     line, pos : (n,) int arrays
     reach : (n,) int array
         Pixels searched on each side, at least 1.
+    box_sums : callable, optional
+        Returns the box sums of ``signal`` (:func:`~scanrig.laser.image.padded_box_sums`, transposed
+        with it), when the frame keeps them; called only when the whole frame's are needed.
 
     Returns
     -------
@@ -384,82 +386,91 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray,
     """
     if line.size == 0:
         return np.zeros(0, np.float32), np.zeros(0, np.float32)
-    if _windows_cost(reach) <= _EROSION_COST * signal.size:
+    if _windows_cost(reach, False) <= _EROSION_COST * signal.size:
         return _prominence_from_windows(signal, line, pos, reach)
-    return _prominence_from_erosion(signal, line, pos, reach)
+    return _prominence_from_erosion(_box_sums_along(signal) if box_sums is None else box_sums(), line, pos, reach)
 
 
-def _windows_cost(reach: np.ndarray) -> int:
+def _windows_cost(reach: np.ndarray, from_box: bool) -> int:
     """Cost of :func:`_prominence_from_windows` for candidates of ``reach``, in table entries."""
-    return _GATHER_COST * 3 * reach.size * (2 * int(reach.max()) + 3)
+    far = int(reach.max())
+    return _GATHER_COST * reach.size * ((2 * far + 1) if from_box else 3 * (2 * far + 3))
 
 
-def _prominence_from_erosion(signal, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`line_prominence` from the whole frame's box sums eroded along the lines.
+def _box_sums_along(signal: np.ndarray) -> np.ndarray:
+    """:func:`~scanrig.laser.image.padded_box_sums` of ``signal`` in its orientation, computed on
+    its base array when it is a transposed view (columns scanned)."""
+    if signal.strides[1] == signal.itemsize or signal.strides[0] != signal.itemsize:
+        return padded_box_sums(signal)
+    return padded_box_sums(signal.T).T
+
+
+def _prominence_from_erosion(box, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_prominence` from the whole frame's box sums ``box`` eroded along the lines.
 
     The candidates at the most common reach ``r`` (all those not on a clipped run) and at least
     ``r`` pixels from both ends of their line read the lowest box sum of ``pos − r .. pos − 1`` and
-    of ``pos + 1 .. pos + r`` from one OpenCV erosion by ``r`` pixels (two full-frame passes, the box
-    filter and the erosion). The others (another reach, or a window beyond the frame) read their
-    own windows or, when they are many, :func:`_prominence_from_table`.
+    of ``pos + 1 .. pos + r`` from one OpenCV erosion by ``r`` pixels. The others (another reach,
+    or a window beyond the frame) read their own windows or, when they are many,
+    :func:`_prominence_from_table`.
     """
     import cv2
 
-    n_pos = signal.shape[1]
+    n_pos = box.shape[1] - 2
     r = int(np.bincount(reach).argmax())
     inside = (reach == r) & (pos >= r) & (pos < n_pos - r)
     easy = np.flatnonzero(inside)
-    along_rows = signal.strides[1] == signal.itemsize or signal.strides[0] != signal.itemsize
-    # a transposed view (columns scanned) is filtered as its base, and eroded across the base's rows
-    base = np.ascontiguousarray(signal) if along_rows else signal.T
-    box = cv2.boxFilter(base, cv2.CV_32F, (3, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
-    lowest = cv2.erode(box, np.ones((1, r) if along_rows else (r, 1), np.uint8), anchor=(0, 0))  # of x .. x + r - 1
-    step = 1 if along_rows else box.shape[1]  # from one position to the next along a line, flat
-    at = line[easy] * (box.shape[1] if along_rows else 1) + pos[easy] * step
+    along_rows = box.strides[1] == box.itemsize
+    # a transposed view (columns scanned) is eroded as its base, across the base's rows
+    core = box[1:-1, 1:-1]
+    lowest = cv2.erode(core if along_rows else core.T, np.ones((1, r) if along_rows else (r, 1), np.uint8),
+                       anchor=(0, 0))  # of x .. x + r - 1
+    step = 1 if along_rows else lowest.shape[1]  # from one position to the next along a line, flat
+    at = line[easy] * (lowest.shape[1] if along_rows else 1) + pos[easy] * step
     prominence, centre = np.empty(line.size, np.float32), np.empty(line.size, np.float32)
-    centre[easy] = box.ravel().take(at)
+    centre[easy] = box[line[easy] + 1, pos[easy] + 1]
     lowest = lowest.ravel()
     prominence[easy] = centre[easy] - np.maximum(lowest.take(at - r * step), lowest.take(at + step))
     rest = np.flatnonzero(~inside)
     if rest.size:
         n_levels = int(reach[rest].max()).bit_length()
-        by = (_prominence_from_windows if _windows_cost(reach[rest]) <= (n_levels + 3) * signal.size
+        by = (_prominence_from_windows if _windows_cost(reach[rest], True) <= (n_levels + 3) * core.size
               else _prominence_from_table)
-        prominence[rest], centre[rest] = by(signal, line[rest], pos[rest], reach[rest])
+        prominence[rest], centre[rest] = by(None, line[rest], pos[rest], reach[rest], box)
     return prominence, centre
 
 
-def _prominence_from_windows(signal, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`line_prominence` from each candidate's own ``3 × (2 reach + 3)`` window."""
-    n_lines, n_pos = signal.shape
+def _prominence_from_windows(signal, line, pos, reach, box=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_prominence` from each candidate's own window of box sums: read from ``box``
+    when given, else summed from the ``3 × (2 reach + 3)`` pixels of ``signal`` around it."""
     far = int(reach.max())
-    offs = np.arange(-far - 1, far + 2)
-    cols = np.clip(pos[:, None] + offs, 0, n_pos - 1)  # (n, 2 far + 3)
-    rows = np.clip(line[:, None] + np.arange(-1, 2), 0, n_lines - 1)  # (n, 3)
-    col3 = signal[rows[:, :, None], cols[:, None, :]].astype(np.float32).sum(axis=1)
-    box = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]  # (n, 2 far + 1): offsets -far .. far
-    beyond = np.abs(offs[1:-1])[None, :] > reach[:, None]
-    box_masked = np.where(beyond, np.float32(np.inf), box)
-    left = box_masked[:, :far].min(axis=1)
-    right = box_masked[:, far + 1 :].min(axis=1)
-    return box[:, far] - np.maximum(left, right), box[:, far]
+    if box is not None:
+        cols = np.clip(pos[:, None] + np.arange(-far, far + 1), -1, box.shape[1] - 2) + 1
+        window = box[line[:, None] + 1, cols]  # (n, 2 far + 1): offsets -far .. far
+    else:
+        n_lines, n_pos = signal.shape
+        cols = np.clip(pos[:, None] + np.arange(-far - 1, far + 2), 0, n_pos - 1)  # (n, 2 far + 3)
+        rows = np.clip(line[:, None] + np.arange(-1, 2), 0, n_lines - 1)  # (n, 3)
+        col3 = signal[rows[:, :, None], cols[:, None, :]].astype(np.float32).sum(axis=1)
+        window = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
+    beyond = np.abs(np.arange(-far, far + 1))[None, :] > reach[:, None]
+    masked = np.where(beyond, np.float32(np.inf), window)
+    left = masked[:, :far].min(axis=1)
+    right = masked[:, far + 1 :].min(axis=1)
+    return window[:, far] - np.maximum(left, right), window[:, far]
 
 
-def _prominence_from_table(signal, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`line_prominence` from a sparse table of running minima along the lines.
+def _prominence_from_table(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_prominence` from a sparse table of running minima of the box sums ``box`` along
+    the lines (``signal`` is not read).
 
     ``minima[k][l, x]`` is the lowest box sum of ``x .. x + 2**k - 1`` on line ``l``; the lowest
     of any window is that of two overlapping power-of-two windows (a range-minimum query). Beyond
-    the frame the pixels repeat its edge, so every box sum there is three times the edge column.
+    the frame the pixels repeat its edge, so every box sum there is that of the ring of ``box``.
     """
-    import cv2
-
-    n_pos = signal.shape[1]
-    values = np.ascontiguousarray(signal, dtype=np.float32)  # summed in float32, like the windows
-    col3 = cv2.boxFilter(values, cv2.CV_32F, (1, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
-    minima = np.empty((int(reach.max()).bit_length(),) + values.shape, np.float32)
-    box = cv2.boxFilter(col3, cv2.CV_32F, (3, 1), dst=minima[0], normalize=False,
-                        borderType=cv2.BORDER_REPLICATE)
+    n_pos = box.shape[1] - 2
+    minima = np.empty((int(reach.max()).bit_length(), box.shape[0] - 2, n_pos), np.float32)
+    minima[0] = box[1:-1, 1:-1]
     for k in range(1, minima.shape[0]):
         half = 1 << (k - 1)
         np.minimum(minima[k - 1, :, : n_pos - half], minima[k - 1, :, half:], out=minima[k, :, : n_pos - half])
@@ -474,9 +485,9 @@ def _prominence_from_table(signal, line, pos, reach) -> tuple[np.ndarray, np.nda
         low = np.where(hi < 0, np.inf, np.where(lo >= n_pos, np.inf, low))  # the window lies outside
         return np.where((lo < 0) | (hi >= n_pos), np.minimum(low, beyond_box), low)
 
-    left = lowest(pos - reach, pos - 1, 3.0 * col3[line, 0])
-    right = lowest(pos + 1, pos + reach, 3.0 * col3[line, n_pos - 1])
-    centre = box[line, pos]
+    left = lowest(pos - reach, pos - 1, box[line + 1, 0])
+    right = lowest(pos + 1, pos + reach, box[line + 1, n_pos + 1])
+    centre = box[line + 1, pos + 1]
     return (centre - np.maximum(left, right)).astype(np.float32), centre
 
 

@@ -114,7 +114,8 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     uv = (pos, line) if rows else (line, pos)
     noise = li.noise_at(*uv).astype(np.float64)
     reach = int(np.ceil(3.0 * max_width_px)) + 1 + run_half
-    prominence_dn, height_dn = line_prominence(signal, line, pos, reach)
+    prominence_dn, height_dn = line_prominence(signal, line, pos, reach,
+                                               lambda: li.box_sums if rows else li.box_sums.T)
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
     keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
