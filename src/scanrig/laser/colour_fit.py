@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _profile, centre_misfit, fit_batch
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _gram, _profile, centre_misfit, fit_batch
 from scanrig.laser.image import ColourFrames
 
 #: Parameter order of the colour models: the profile's (centre, then widths), then per channel.
@@ -63,8 +63,9 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     y, usable, noise = _windows(colour, across, along) if rows else _windows(colour, along, across)
     trial = np.exp(-0.5 * (offs[None, :] / _START_WIDTHS[:, None]) ** 2)  # (k, W)
     lower, upper = _bounds(colour, half, 1)
-    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_1d(offs.astype(float), noise), trial, lower,
-                    upper)
+    x = offs.astype(float)
+    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_1d(x, noise), trial, lower, upper,
+                    _normal_1d(x, noise))
     p, var = res.params, cov[:, 0, 0]
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
     peak = p[:, 2 + colour.laser_channel]
@@ -141,10 +142,11 @@ def _bounds(colour: ColourFrames, half: int, n_axes: int):
     return lower, upper
 
 
-def _fit(y, usable, noise, laser, model, trial, lower, upper):
-    """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)``; returns the fit and the
-    covariance ``(n, P, P)`` of the parameters, inflated where the model leaves a misfit that pulls
-    the centre (:func:`~scanrig.laser.fit.centre_misfit`)."""
+def _fit(y, usable, noise, laser, model, trial, lower, upper, normal=None):
+    """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` (``normal``: the model's normal
+    equations, see :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance
+    ``(n, P, P)`` of the parameters, inflated where the model leaves a misfit that pulls the centre
+    (:func:`~scanrig.laser.fit.centre_misfit`)."""
     n, m = y.shape[:2]
     n_axes = (lower.size - 6) // 2
     # candidate-minor stacks, channel-major pixels: (3 M, n)
@@ -152,7 +154,7 @@ def _fit(y, usable, noise, laser, model, trial, lower, upper):
     mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
     start = _start(y, usable, trial, noise, laser)
     p0 = np.concatenate([np.zeros((n, n_axes)), np.repeat(start[:, :1], n_axes, axis=1), start[:, 1:]], axis=1)
-    res = fit_batch(model, y_minor, mask, p0, lower, upper, minor=True)
+    res = fit_batch(model, y_minor, mask, p0, lower, upper, minor=True, normal=normal)
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
     if good.any():  # whitened pixels: unit variance where fitted
@@ -174,6 +176,52 @@ def _model_1d(x: np.ndarray, noise: np.ndarray):
         return _channels(prof[0], prof[1:], p[2:], noise)
 
     return model
+
+
+def _normal_1d(x: np.ndarray, noise: np.ndarray):
+    """The cost and normal equations of :func:`_model_1d` for :func:`scanrig.laser.fit.fit_batch`
+    (``normal``), from the channels' sums instead of the dense Jacobian.
+
+    On channel ``c`` the Jacobian's columns are the profile's bases ``f = (g, ∂g/∂x0, ∂g/∂s, 1)``
+    scaled by ``(1/σ_c, a_c/σ_c, a_c/σ_c, 1/σ_c)`` for ``(a_c, x0, s, b_c)`` and zero for the other
+    channels' amplitudes and backgrounds, so ``JᵀJ`` and ``Jᵀr`` follow from the 4 × 4 sums
+    ``Σ w f_i f_j`` and ``Σ r f_i`` of each channel (a third of the products of the dense ``(8, 3 W)``
+    Jacobian, which is never built). ``p (8, k)``, ``y, w (3 W, k)`` -> ``Σ r² (k,)``, ``JᵀJ (8, 8, k)``
+    (lower triangle), ``Jᵀr (8, k)``.
+    """
+    edges = _edges(x)
+    w_px = x.size
+    # parameter of each basis on channel c: g -> a_c, ∂g/∂x0 -> x0, ∂g/∂s -> s, 1 -> b_c
+    target = [[2 + c, 0, 1, 5 + c] for c in range(3)]
+
+    def normal(p, y, w):
+        k = p.shape[1]
+        basis = np.empty((4, w_px, k))
+        _profile(edges, p[0], p[1], basis)  # g, ∂g/∂x0, ∂g/∂s
+        basis[3] = 1.0
+        cost = np.zeros(k)
+        hess = np.zeros((8, 8, k))
+        grad = np.zeros((8, k))
+        for c in range(3):  # the three channels: a loop over a fixed axis of length 3, not over data
+            pixels = slice(c * w_px, (c + 1) * w_px)
+            amp = p[2 + c] / noise[c]
+            r = y[pixels] - basis[0] * amp
+            r -= p[5 + c] / noise[c]
+            weighted = basis if w is None else basis * w[pixels]
+            if w is not None:
+                r *= w[pixels]
+            cost += np.einsum("mn,mn->n", r, r)
+            sums = _gram(weighted)  # Σ w f_i f_j (w is 0 or 1), lower triangle
+            grad_c = np.einsum("imn,mn->in", basis, r)
+            scale = (1.0 / noise[c], amp, amp, 1.0 / noise[c])
+            for i in range(4):
+                grad[target[c][i]] += scale[i] * grad_c[i]
+                for j in range(i + 1):
+                    row, col = max(target[c][i], target[c][j]), min(target[c][i], target[c][j])
+                    hess[row, col] += (scale[i] * scale[j]) * sums[i, j]
+        return cost, hess, grad
+
+    return normal
 
 
 def _model_2d(xu: np.ndarray, xv: np.ndarray, noise: np.ndarray):

@@ -222,7 +222,8 @@ class FitResult:
 
 
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
-              upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False) -> FitResult:
+              upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False,
+              normal=None) -> FitResult:
     """Levenberg–Marquardt least squares for a stack of independent windows.
 
     Each candidate iterates until an accepted step lowers its cost by less than ``tol`` (relative)
@@ -249,6 +250,11 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         Relative cost decrease below which a candidate has converged.
     minor : bool
         Model, data and mask are candidate-minor (see the module notes).
+    normal : callable, optional
+        With ``minor``: ``normal(p (P, k), y (M, k), w (M, k) or None) -> (Σ r² (k,), JᵀJ (P, P, k)
+        (lower triangle), Jᵀr (P, k))``, the weighted cost and normal equations of ``model``, for a
+        model whose structure gives them more cheaply than its dense Jacobian (``w`` the mask as 0/1
+        floats, None where every pixel is fitted). ``model`` is then evaluated only at the solution.
 
     Returns
     -------
@@ -279,7 +285,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     # the working set: candidates still iterating, their data and state (views until one leaves)
     idx = np.arange(p.shape[1])
     ya, wa, pa = y, w, p
-    cost, hess, grad = _evaluate(model, pa, ya, wa, normal=True)
+    evaluate = normal or functools.partial(_evaluate, model, normal=True)
+    cost, hess, grad = evaluate(pa, ya, wa)
     lam = np.full(idx.size, _LAMBDA0)
     for _ in range(n_iter):
         if idx.size == 0:
@@ -288,7 +295,7 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         p_try += pa
         np.maximum(p_try, lower, out=p_try)
         np.minimum(p_try, upper, out=p_try)
-        cost_try, hess_try, grad_try = _evaluate(model, p_try, ya, wa, normal=True)
+        cost_try, hess_try, grad_try = evaluate(p_try, ya, wa)
         better = cost_try < cost
         converged = better & (cost - cost_try <= tol * cost)
         lam = np.where(better, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
