@@ -148,6 +148,12 @@ class ColourFrames:
         return plane
 
     @functools.cached_property
+    def laser_box_sums(self) -> np.ndarray:
+        """:func:`padded_box_sums` of :attr:`laser_plane`, for the prominence of many candidates
+        along rows and columns."""
+        return padded_box_sums(self.laser_plane)
+
+    @functools.cached_property
     def laser_noise(self) -> float:
         """Noise σ of :attr:`laser_plane`, DN (:func:`effective_noise`)."""
         return effective_noise(self.laser_plane)

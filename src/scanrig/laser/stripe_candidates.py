@@ -101,8 +101,8 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     cand = find_candidates(li, along, excess, k_detect=k_detect)
     rows = along == "rows"
     line, pos, score = (cand.v, cand.u, cand.score) if rows else (cand.u, cand.v, cand.score)
-    if not rows:  # sorted by row, then column: now by column, then row (one integer key sorts fastest)
-        order = np.argsort(line * li.signal.shape[0] + pos)
+    if not rows:  # sorted by row, then column: now by column, then row (a stable radix sort by column)
+        order = np.argsort(line.astype(np.min_scalar_type(li.signal.shape[1] - 1)), kind="stable")
         line, pos, score = line[order], pos[order], score[order]
     keep = suppress_on_lines(line, pos, score, min_separation_px)
     line, pos = line[keep], pos[keep]
@@ -137,7 +137,8 @@ def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -
     seen = run_half > 0
     asked = np.flatnonzero(~seen)
     plane = colour.laser_plane if rows else colour.laser_plane.T
-    prominence_dn, _ = line_prominence(plane, line[asked], pos[asked], reach[asked])
+    prominence_dn, _ = line_prominence(plane, line[asked], pos[asked], reach[asked],
+                                       lambda: colour.laser_box_sums if rows else colour.laser_box_sums.T)
     seen[asked] = prominence_dn >= k_detect * 3.0 * colour.laser_noise
     return seen
 
