@@ -301,16 +301,16 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         lam = np.where(better, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
         if better.all():
             pa, cost, hess, grad = p_try, cost_try, hess_try, grad_try
-        else:
-            pa[:, better] = p_try[:, better]
-            cost[better] = cost_try[better]
-            hess[..., better] = hess_try[..., better]
-            grad[:, better] = grad_try[:, better]
+        else:  # the rejected keep their state: one masked pass per array, no boolean gathers
+            for kept, tried in ((pa, p_try), (cost, cost_try), (hess, hess_try), (grad, grad_try)):
+                np.copyto(kept, tried, where=better)
         stay = ~converged & (lam < 1e10)
         if not stay.all():
             p[:, idx] = pa
-            idx, ya, pa, cost, hess, grad, lam = (a[..., stay] for a in (idx, ya, pa, cost, hess, grad, lam))
-            wa = None if wa is None else wa[:, stay]
+            keep = np.flatnonzero(stay)
+            idx, ya, pa, cost, hess, grad, lam = (np.take(a, keep, axis=-1)
+                                                  for a in (idx, ya, pa, cost, hess, grad, lam))
+            wa = None if wa is None else np.take(wa, keep, axis=-1)
     p[:, idx] = pa
     r, jac = _evaluate(model, p, y, w)
     cost = np.einsum("mn,mn->n", r, r)
