@@ -1,7 +1,7 @@
 """Ranking of stripe candidates by continuity (scanrig.laser.continuity), on synthetic candidates.
 
 Tolerances: the stripes' centres scatter by ``CENTRE_NOISE_PX`` (σ) about a line moving
-``SLOPE_PX`` per scan line, so two neighbours differ by at most SLOPE + 6·√2·σ ≈ 0.9 px, inside
+``SLOPE_PX`` per scan line, so two neighbours differ by at most SLOPE + 6·√2·σ ≈ 1.15 px, inside
 the reach of one line (``MAX_STEP_PX + JITTER_PX`` = 2 px).
 """
 
@@ -18,8 +18,10 @@ SLOPE_PX = 0.3
 LINES = 200
 
 
-def _stripe(rng, start_px, lines=np.arange(LINES), prominence=10.0):
-    """Candidates of one straight stripe: line, centre (px), prominence."""
+def _stripe(rng, start_px, lines=None, prominence=10.0):
+    """Candidates of one straight stripe on ``lines`` (default all ``LINES``): line, centre (px),
+    prominence."""
+    lines = np.arange(LINES) if lines is None else lines
     centre = start_px + SLOPE_PX * lines + rng.normal(0.0, CENTRE_NOISE_PX, lines.size)
     return lines, centre, np.full(lines.size, prominence)
 
@@ -64,8 +66,8 @@ def test_a_gap_of_one_or_two_lines_is_bridged_a_longer_one_cuts():
 
 
 def test_a_candidate_beside_the_stripe_does_not_join_its_chain():
-    """A texture candidate 1.5 px beside the stripe is within reach of the stripe's next point, but
-    that point's nearest is the stripe itself: links are mutual, the texture stays alone."""
+    """A texture candidate 1.5 px beside the stripe links to the stripe's next point, but the
+    stripe's own point before it is nearer and keeps that link: the texture stays alone."""
     rng = np.random.default_rng(3)
     stripe = _stripe(rng, 100.0)
     beside = (np.array([50]), np.array([100.0 + SLOPE_PX * 51 + 1.5]), np.array([50.0]))
@@ -78,7 +80,7 @@ def test_a_candidate_beside_the_stripe_does_not_join_its_chain():
 def test_a_peak_fitted_twice_does_not_cut_the_chain():
     """Two fits that converged on one peak (the same centre twice on some lines) are one node."""
     rng = np.random.default_rng(4)
-    line, centre, prominence = _stripe(rng, 100.0)
+    line, centre, _ = _stripe(rng, 100.0)
     twice = np.arange(50, 70)
     line, centre = np.r_[line, twice], np.r_[centre, centre[twice]]
     assert np.all(chain_lengths(line, centre) == LINES)

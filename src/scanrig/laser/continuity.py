@@ -5,9 +5,9 @@ so from one line to the next a stripe's centre moves by at most about a pixel, o
 lines. A printed dot's edge or the gap between two dots gives candidates on a few lines only; a
 glint is a blob. Each candidate is linked to its nearest candidate on the next line within
 ``MAX_STEP_PX`` per line plus ``JITTER_PX`` (one or two lines without one within reach are
-skipped, ``MAX_GAP_LINES``), when that one's nearest on the lines before is it too: mutual links
-make simple chains, so a texture candidate beside a stripe never joins the stripe's chain. Two fits
-that met on one peak of a line (``SAME_PEAK_PX``) count as one. The candidates of a line are ranked
+skipped, ``MAX_GAP_LINES``); where several link to one, only the nearest keeps its link. The links
+make simple chains, so a texture candidate beside a stripe does not join the stripe's chain. Two
+fits that met on one peak of a line (``SAME_PEAK_PX``) count as one. The candidates of a line are ranked
 by the number of lines their chain spans, counted up to ``CHAIN_CAP_LINES``, then by prominence: a
 long trace outranks a stronger short one, and two long traces (two lasers, a reflection) both
 stay, the more prominent first.
@@ -67,10 +67,13 @@ def chain_lengths(line: np.ndarray, centre: np.ndarray) -> np.ndarray:
     if n == 0:
         return np.zeros(0, np.int64)
     line = line.astype(np.int64)
-    forward, backward, order = _links(line, centre)
+    forward, distance, order = _links(line, centre)
     line, centre = line[order], centre[order]
     linked = np.flatnonzero(forward >= 0)
-    linked = linked[backward[forward[linked]] == linked]
+    # of the candidates linking to one, the nearest keeps its link: chains do not branch
+    nearest = np.full(n, np.inf)
+    np.minimum.at(nearest, forward[linked], distance[linked])
+    linked = linked[distance[linked] == nearest[forward[linked]]]
     # two fits that met on one peak of a line are one node of the chain
     same = np.flatnonzero((line[1:] == line[:-1]) & (centre[1:] - centre[:-1] <= SAME_PEAK_PX))
     graph = coo_matrix((np.ones(linked.size + same.size, np.int8),
@@ -110,16 +113,17 @@ def rank_by_continuity(line: np.ndarray, centre: np.ndarray, prominence: np.ndar
     return rank_on_lines(line, capped + prominence / (2.0 * np.max(prominence)))
 
 
-#: Lines searched on each side of a candidate, nearest first: +1, +2, ... then -1, -2, ...
-_STEPS = np.r_[np.arange(1, MAX_GAP_LINES + 2), -np.arange(1, MAX_GAP_LINES + 2)]
+#: Lines searched after a candidate, nearest first.
+_STEPS = np.arange(1, MAX_GAP_LINES + 2)
 #: Reach on the line ``_STEPS`` away, px.
-_GATE_PX = np.abs(_STEPS)[:, None] * MAX_STEP_PX + JITTER_PX
+_GATE_PX = _STEPS[:, None] * MAX_STEP_PX + JITTER_PX
 
 
 def _links(line: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each candidate's link on the lines after it and on the lines before it: on the nearest line
-    within ``MAX_GAP_LINES + 1`` that holds a candidate within reach, the nearest one there (-1
-    where there is none); indices into the candidates sorted by (line, centre), and that order.
+    """Each candidate's link on the lines after it: on the nearest line within ``MAX_GAP_LINES + 1``
+    that holds a candidate within reach, the nearest one there (-1 where there is none), and its
+    distance along the line (px); indices into the candidates sorted by (line, centre), and that
+    order.
 
     One float key per candidate, ``(line − first line) · stride + centre − low``, sorts them by line,
     then centre. The stride exceeds the centres' range by more than twice the largest reach, so a
@@ -137,10 +141,9 @@ def _links(line: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray
     padded = np.r_[-np.inf, key, np.inf]
     to_left, to_right = query - padded[right], padded[right + 1] - query
     nearest = np.where(to_left <= to_right, right - 1, right)
-    within = np.minimum(to_left, to_right) <= _GATE_PX
+    distance = np.minimum(to_left, to_right)
+    within = distance <= _GATE_PX
+    first = np.argmax(within, axis=0)  # the nearest line with a candidate within reach
     columns = np.arange(key.size)
-    links = []
-    for side in (slice(0, MAX_GAP_LINES + 1), slice(MAX_GAP_LINES + 1, None)):
-        first = np.argmax(within[side], axis=0)  # the nearest line with a candidate within reach
-        links.append(np.where(within[side][first, columns], nearest[side][first, columns], -1))
-    return links[0], links[1], order
+    found = within[first, columns]
+    return np.where(found, nearest[first, columns], -1), distance[first, columns], order
