@@ -129,16 +129,19 @@ def test_direction_map_without_candidates_scans_rows():
 
 @pytest.mark.parametrize("along", ["2d", "rows", "columns"])
 @pytest.mark.parametrize("search", ["patches", "frame"])
-def test_candidates_match_a_plain_search(along, search, monkeypatch):
+@pytest.mark.parametrize("with_dark", [False, True])
+def test_candidates_match_a_plain_search(along, search, with_dark, monkeypatch):
     """Every local maximum of the 3 × 3 box sum in the flagged blocks and their neighbours that
     passes the detection test, found by a full-frame search; the same from the patches around the
-    flagged blocks and from the whole-frame filters."""
+    flagged blocks and from the whole-frame filters, with the noise of the cells or (laser-off frame
+    subtracted) of the per-pixel model."""
     monkeypatch.setattr(peaks, "_WHOLE_FRAME_SHARE", 2.0 if search == "patches" else 0.0)
     rng = np.random.default_rng(16)
     shape = (123, 157)
     img = stripe_image(shape, lambda lines: 40.3 + 0.4 * lines, rng, 120.0, 1.5, 10.0, 2.0)
     img = np.maximum(img, spot_image(shape, [(3.2, 60.7, 150.0, 1.2, 1.2), (150.1, 2.4, 90, 1.0, 1.0)], rng))
-    li = prepare_image(img)
+    li = prepare_image(img, dark=spot_image(shape, [], rng, 10.0, 2.0) if with_dark else None)
+    assert (li.noise_model is not None) == with_dark
     excess = peaks.prescan(li)
     found = peaks.find_candidates(li, along, excess)
 

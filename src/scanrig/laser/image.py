@@ -119,6 +119,11 @@ class NoiseModel:
         var = self.offset + self.slope * level.mean(axis=(-2, -1))
         return np.sqrt(np.maximum(var, QUANTIZATION_SIGMA**2)).astype(np.float32)
 
+    @property
+    def floor(self) -> float:
+        """The lowest σ :meth:`sigma_at` returns (at level 0: the slope is never negative), DN."""
+        return float(np.sqrt(np.maximum(np.float32(self.offset), np.float32(QUANTIZATION_SIGMA**2))))
+
 
 @dataclass(frozen=True, eq=False)
 class ColourFrames:
@@ -219,6 +224,11 @@ class LaserImage:
         if self.noise_model is not None:
             return self.noise_model.sigma_at(u, v)
         return _cell_lookup(self.noise, NOISE_CELL, u, v)
+
+    def noise_floor(self) -> float:
+        """The lowest :meth:`noise_at` anywhere in the frame, DN: a test that needs more than a few
+        noise σ rejects with it what cannot pass before the noise is looked up."""
+        return self.noise_model.floor if self.noise_model is not None else float(self.noise.min())
 
     @functools.cached_property
     def box_sums(self) -> np.ndarray:

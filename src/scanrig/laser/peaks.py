@@ -201,9 +201,18 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
         v, u, box = _maxima_of_frame(li.box_sums, flagged, along)
     else:
         v, u, box = _maxima_in_patches(sig, flagged, along)
-    score = (box - 9.0 * li.background_at(u, v)) / (3.0 * li.noise_at(u, v))
+    above = box - 9.0 * li.background_at(u, v)
+    # the noise looked up only where the frame's lowest could pass (its margin covers rounding)
+    hopeful = np.flatnonzero(above >= _HOPEFUL * 3.0 * k_detect * li.noise_floor())
+    u, v = u[hopeful], v[hopeful]
+    score = above[hopeful] / (3.0 * li.noise_at(u, v))
     keep = score >= k_detect
     return Candidates(u[keep], v[keep], score[keep])
+
+
+#: Margin of the test against the frame's lowest noise in :func:`find_candidates` (a candidate
+#: rejected there would fail the exact test by far more than rounding).
+_HOPEFUL = 0.999
 
 
 #: Share of the blocks flagged (with their neighbours) from which the maxima are searched with

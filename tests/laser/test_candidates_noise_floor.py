@@ -1,0 +1,29 @@
+"""The frame's lowest noise, with which candidate finding rejects early, bounds every looked-up noise."""
+
+import numpy as np
+import pytest
+
+from scanrig.laser.image import prepare_image
+
+from .synth import stripe_image
+
+
+@pytest.mark.parametrize("with_dark", [False, True])
+def test_noise_floor_is_the_lowest_noise_of_the_frame(with_dark):
+    rng = np.random.default_rng(31)
+    shape = (96, 130)
+    # a shaded background (5 to 120 DN): the cells and the per-pixel model vary over the frame
+    shading = np.linspace(5.0, 120.0, shape[1])[None, :]
+    img = stripe_image(shape, lambda lines: 60.3 + 0.2 * lines, rng, 100.0, 1.5, 0.0, 2.0)
+    scene = np.clip(img + shading + rng.normal(0.0, 1.0, shape), 0, 255).round().astype(np.uint8)
+    dark = np.clip(shading + rng.normal(0.0, 1.0, shape), 0, 255).round().astype(np.uint8) if with_dark else None
+    li = prepare_image(scene, dark=dark)
+    assert (li.noise_model is not None) == with_dark
+    v, u = np.mgrid[: shape[0], : shape[1]]
+    noise = li.noise_at(u.ravel(), v.ravel())
+    floor = li.noise_floor()
+    assert floor <= noise.min()
+    if with_dark:  # the model's σ at level 0; the darkest pixels (5 DN) lie a little above it
+        assert noise.min() <= floor * (1 + li.noise_model.slope * 10.0 / floor**2)
+    else:  # the cells' own minimum
+        assert floor == noise.min()
