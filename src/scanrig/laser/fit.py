@@ -593,8 +593,8 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
         cov = base_var[:, None, None] * info
     factor = np.ones(len(cov))
     if good.any():
-        factor[good] = centre_misfit(np.take(jac, usable, axis=-1), info[usable], np.take(r, usable, axis=1),
-                                     np.take(pixel_var, usable, axis=1), res.dof[usable], centre)
+        pick = slice(None) if usable.size == good.size else usable  # views where every fit is usable
+        factor[pick] = centre_misfit(jac[..., pick], info[pick], r[:, pick], pixel_var[:, pick], res.dof[pick], centre)
     return cov * factor[:, None, None]
 
 
