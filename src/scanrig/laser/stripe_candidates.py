@@ -95,9 +95,11 @@ _MIN_RELATIVE_PROMINENCE = 0.25
 
 
 def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> LineCandidates:
-    """Local maxima along rows or columns that pass the detection test, rise above both flanks by
-    ``k_detect`` noise σ of the box sum and by ``_MIN_RELATIVE_PROMINENCE`` of their height, and
-    are not suppressed by a stronger neighbour."""
+    """Local maxima along rows or columns that pass the detection test, are not suppressed by a
+    stronger neighbour, rise above both flanks by ``k_detect`` noise σ of the box sum and by
+    ``_MIN_RELATIVE_PROMINENCE`` of their height, and in a colour frame rise in the laser's own
+    channel too (:func:`_seen_in_laser_channel`, asked first: the tests are independent, and on
+    a textured frame it keeps one maximum in ten, so the rest runs on few)."""
     cand = find_candidates(li, along, excess, k_detect=k_detect)
     rows = along == "rows"
     line, pos, score = (cand.v, cand.u, cand.score) if rows else (cand.u, cand.v, cand.score)
@@ -106,38 +108,40 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
         line, pos, score = line[order], pos[order], score[order]
     keep = suppress_on_lines(line, pos, score, min_separation_px)
     line, pos = line[keep], pos[keep]
-    signal = li.signal if rows else li.signal.T
+    reach = int(np.ceil(3.0 * max_width_px)) + 1  # of an unclipped candidate
+    saturated = None if li.saturated is None else (li.saturated if rows else li.saturated.T)
+    clipped = np.zeros(line.size, bool) if saturated is None else saturated[line, pos]
+    if li.colour is not None:
+        keep = _seen_in_laser_channel(li.colour, rows, line, pos, clipped, reach, k_detect)
+        line, pos, clipped = line[keep], pos[keep], clipped[keep]
     run_half = np.zeros(line.size, np.int64)
-    if li.saturated is not None:
-        pos, run_half = _centre_of_saturated_run(li.saturated if rows else li.saturated.T, line, pos,
-                                                 _MAX_RUN_HALF_PX)
+    if clipped.any():
+        pos, run_half = _centre_of_saturated_run(saturated, line, pos, clipped, _MAX_RUN_HALF_PX)
     uv = (pos, line) if rows else (line, pos)
     noise = li.noise_at(*uv).astype(np.float64)
-    reach = int(np.ceil(3.0 * max_width_px)) + 1 + run_half
+    reach = reach + run_half
+    signal = li.signal if rows else li.signal.T
     prominence_dn, height_dn = line_prominence(signal, line, pos, reach,
                                                lambda: li.box_sums if rows else li.box_sums.T)
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
     keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
-    if li.colour is not None:  # asked only of the candidates that passed the signal's tests
-        passed = np.flatnonzero(keep)
-        keep[passed] = _seen_in_laser_channel(li.colour, rows, line[passed], pos[passed], reach[passed],
-                                              run_half[passed], k_detect)
     return LineCandidates(line, pos, run_half, prominence, noise).take(keep)
 
 
-def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -> np.ndarray:
+def _seen_in_laser_channel(colour, rows, line, pos, clipped, reach, k_detect) -> np.ndarray:
     """Whether each candidate of a colour frame is a peak of the laser's own channel too.
 
     A colour difference such as ``red − (green + blue)/2`` has bumps of its own at strong edges of
     grey texture (JPEG stores colour at half resolution and rings there) that the laser channel
-    does not show: a red laser must rise in red above both flanks by ``k_detect`` of that
-    channel's noise. Clipped candidates are seen by their clipping.
+    does not show: a red laser must rise in red above both flanks (within ``reach`` pixels) by
+    ``k_detect`` of that channel's noise. Candidates on a ``clipped`` pixel are seen by their
+    clipping.
     """
-    seen = run_half > 0
+    seen = clipped.copy()
     asked = np.flatnonzero(~seen)
     plane = colour.laser_plane if rows else colour.laser_plane.T
-    prominence_dn, _ = line_prominence(plane, line[asked], pos[asked], reach[asked],
+    prominence_dn, _ = line_prominence(plane, line[asked], pos[asked], np.full(asked.size, reach),
                                        lambda: colour.laser_box_sums if rows else colour.laser_box_sums.T)
     seen[asked] = prominence_dn >= k_detect * 3.0 * colour.laser_noise
     return seen
@@ -148,12 +152,12 @@ def _seen_in_laser_channel(colour, rows, line, pos, reach, run_half, k_detect) -
 _MAX_RUN_HALF_PX = 32
 
 
-def _centre_of_saturated_run(saturated, line, pos, reach) -> tuple[np.ndarray, np.ndarray]:
-    """Seeds that sit on a clipped plateau (found at its end) moved to the plateau's middle, and the
-    plateau's half-length (0 for seeds that are not clipped), followed at most ``reach`` pixels and
-    not beyond the frame."""
+def _centre_of_saturated_run(saturated, line, pos, clipped, reach) -> tuple[np.ndarray, np.ndarray]:
+    """Seeds that sit on a clipped plateau (``clipped``, found at its end) moved to the plateau's
+    middle, and the plateau's half-length (0 for seeds that are not clipped), followed at most
+    ``reach`` pixels and not beyond the frame."""
     pos, run_half = pos.copy(), np.zeros(pos.size, np.int64)
-    clipped = np.flatnonzero(saturated[line, pos])
+    clipped = np.flatnonzero(clipped)
     offs = np.arange(-reach, reach + 1)
     idx = pos[clipped, None] + offs
     inside = (idx >= 0) & (idx < saturated.shape[1])
