@@ -402,8 +402,18 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
 
 def _windows_cost(reach: np.ndarray, from_box: bool) -> int:
     """Cost of :func:`_prominence_from_windows` for candidates of ``reach``, in table entries."""
-    far = int(reach.max())
-    return _GATHER_COST * reach.size * ((2 * far + 1) if from_box else 3 * (2 * far + 3))
+    cost = 0
+    for batch in _reach_batches(reach):
+        far = int(reach[batch].max())
+        cost += _GATHER_COST * reach[batch].size * ((2 * far + 1) if from_box else 3 * (2 * far + 3))
+    return cost
+
+
+def _reach_batches(reach: np.ndarray) -> list[np.ndarray]:
+    """Masks of the candidates within the most common reach (all those not on a clipped run) and
+    of the others, if any: read in two batches, a few long windows do not widen all."""
+    common = reach <= np.bincount(reach).argmax()
+    return [common] if common.all() else [common, ~common]
 
 
 def _box_sums_along(signal: np.ndarray) -> np.ndarray:
@@ -451,7 +461,16 @@ def _prominence_from_erosion(box, line, pos, reach) -> tuple[np.ndarray, np.ndar
 
 def _prominence_from_windows(signal, line, pos, reach, box=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`line_prominence` from each candidate's own window of box sums: read from ``box``
-    when given, else summed from the ``3 × (2 reach + 3)`` pixels of ``signal`` around it."""
+    when given, else summed from the ``3 × (2 reach + 3)`` pixels of ``signal`` around it; in
+    the batches of :func:`_reach_batches`."""
+    prominence, centre = np.empty(line.size, np.float32), np.empty(line.size, np.float32)
+    for batch in _reach_batches(reach):
+        prominence[batch], centre[batch] = _windows_batch(signal, line[batch], pos[batch], reach[batch], box)
+    return prominence, centre
+
+
+def _windows_batch(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_prominence_from_windows` of one batch, in windows as wide as its longest reach."""
     far = int(reach.max())
     if box is not None:
         cols = np.clip(pos[:, None] + np.arange(-far, far + 1), -1, box.shape[1] - 2) + 1
