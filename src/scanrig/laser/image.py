@@ -253,8 +253,16 @@ def padded_box_sums(signal: np.ndarray) -> np.ndarray:
     """
     import cv2
 
-    padded = cv2.copyMakeBorder(np.ascontiguousarray(signal), 2, 2, 2, 2, cv2.BORDER_REPLICATE)
-    return cv2.boxFilter(padded, cv2.CV_32F, (3, 3), normalize=False)[1:-1, 1:-1]
+    h, w = signal.shape
+    out = np.empty((h + 2, w + 2), np.float32)
+    cv2.boxFilter(np.ascontiguousarray(signal), cv2.CV_32F, (3, 3), dst=out[1:-1, 1:-1], normalize=False,
+                  borderType=cv2.BORDER_REPLICATE)
+    # the ring: the sums there hold the edge row (column) three times, and its neighbours
+    for ring, edge in ((out[0], signal[0]), (out[-1], signal[-1]), (out[:, 0], signal[:, 0]),
+                       (out[:, -1], signal[:, -1])):
+        e = np.concatenate([edge[:1], edge[:1], edge, edge[-1:], edge[-1:]]).astype(np.float32)
+        ring[:] = 3 * (e[:-2] + e[1:-1] + e[2:])
+    return out
 
 
 def _cell_lookup(cells: np.ndarray, cell: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
