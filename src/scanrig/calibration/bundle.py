@@ -383,6 +383,7 @@ class Problem:
             intr = layout.intrinsics[c]
             values.append((J_intr[:, :, intr >= 0] * w).ravel())
             if layout.camera_pose[c] is not None:
+                J_pose[:, :, :3] = J_pose[:, :, :3] @ _rvec_chart(cam.cam_from_world.rvec, x[layout.camera_pose[c]][:3])
                 values.append((J_pose * w).ravel())
             has = self._shot_cols[obs.shot[sel]] >= 0
             J_shot = np.concatenate([J_point[has] @ J_rot[sel[has]], J_point[has]], axis=2)
@@ -539,7 +540,9 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
     # the first run measures, so the covariance carries the prior's own variance.
     for _ in range(1 if prior is None else 2):
         res = solve(x, inliers, np.ones(inliers.sum()))
-        x, total_iterations = res.x, total_iterations + res.iterations
+        # Rotation vectors back to at most pi (same rotations), as the cameras and the covariance's
+        # users (Camera.project_with_jacobians, uncertainty) differentiate by them.
+        x, total_iterations = pack(unpack(res.x, layout, template), layout), total_iterations + res.iterations
         r, J = Problem(sub, p_target[inliers], layout, template, np.sqrt(sub.weight), prior, prior_scale_px,
                        _rows(flex_dir, inliers))(x, True)
         if not np.all(np.isfinite(r)):
@@ -552,6 +555,21 @@ def bundle_adjust(obs: Observations, target: Target, cameras: list[Camera],
     p_usable = bend(p_target[usable], _rows(flex_dir, usable), state.flex_m)
     residuals[usable] = project_observations(state, obs.subset(usable), p_usable) - obs.uv[usable]
     return BundleResult(state, layout, x, obs, inliers, residuals, sigma, outliers, total_iterations, J)
+
+
+def _rvec_chart(rvec_camera: np.ndarray, rvec_x: np.ndarray) -> np.ndarray:
+    """(3, 3) ``d rvec_camera / d rvec_x`` for two rotation vectors of the same rotation.
+
+    :meth:`Camera.project_with_jacobians` differentiates by the camera's own rotation vector,
+    which is at most pi long, while the solver steps the one in ``x``, which may have grown past pi
+    (the same rotation: the axis reversed and the angle 2 pi less). By d(R p)/d rvec = -R [p]x M
+    (:func:`rotation_jacobians`), the factor is ``M(rvec_camera)⁻¹ M(rvec_x)``: the identity (to
+    round-off) while the two agree. Without it, a camera rotated by nearly 180 deg from the world
+    frame whose vector crossed pi during the solve had two of its rotation columns mirrored, so
+    the solver stopped short of the minimum.
+    """
+    _, M = rotation_jacobians(np.stack([rvec_camera, rvec_x]))
+    return np.linalg.solve(M[0], M[1])
 
 
 def _residual_norms(x, layout, template, obs, p_target, flex_dir, rows) -> np.ndarray:
