@@ -406,7 +406,12 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
 
     The ``sparse`` points (:func:`_sparse_points`) take their score, residual and sigma from
     ``sparse_outputs`` (:func:`_sparse_outputs`, in the order of ``np.flatnonzero(sparse)``), and
-    charts of sparse points move no point.
+    charts of sparse points move no point; nor, in such a sparse cloud, does any chart with fewer
+    than ``SPARSE_CHART_POINTS`` members, a half of a dense chart cut that small by the
+    refinement included: its networks have as few points as a sparse chart's (a box on a floor
+    in charts of 300 points: two such halves, 161 and 198 members, one of them straddling an
+    edge, moved floor points up to 7 noise sigmas off it, 1-6 % worse in RMS on 13 of 16 weight
+    seeds; with this, none).
     """
     n = len(points)
     r = settings.constants.r
@@ -418,6 +423,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
                                else ([c for c, d in zip(charts, dense) if d], sigma_fit[dense])))
     sigma_ref = sigma_floor if sigma_floor > 0 else max(typical, 1e-300)
     trusted = sigma_fit <= TRUST_FACTOR * sigma_ref
+    moves = dense & (np.array([len(c.members) >= SPARSE_CHART_POINTS for c in charts]) | (not sparse.any()))
     cos_max = np.cos(MAX_NORMAL_ANGLE)
     acc = np.zeros((n, 7))  # weight, denoised xyz, residual, score, sigma
     acc_d = np.zeros((n, 4))  # guarded weight, denoised xyz
@@ -435,7 +441,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
             np.full(m, sigma_c[c]),
         ])
         np.add.at(acc, chart.members, np.column_stack([w, w[:, None] * values]))
-        if trusted[c] and dense[c]:
+        if trusted[c] and moves[c]:
             agree = np.abs(normals[chart.members] @ chart.rotation[2]) >= cos_max
             # a point beyond the rejection point of the fit is flagged, never moved: it is a gross
             # error or it lies on structure the fit smooths away (an edge, a step, a corner),
