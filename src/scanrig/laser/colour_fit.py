@@ -158,8 +158,9 @@ def _fit(y, usable, noise, laser, model, trial, lower, upper, normal=None):
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
     if good.any():  # whitened pixels: unit variance where fitted
-        cov[good] *= centre_misfit(res.jac.transpose(2, 1, 0)[..., good], res.info_inv[good],
-                                   res.residuals.T[:, good], mask[:, good].astype(float), res.dof[good],
+        pick = slice(None) if good.all() else good  # views, not copies, where every fit is usable
+        cov[pick] *= centre_misfit(res.jac.transpose(2, 1, 0)[..., pick], res.info_inv[pick],
+                                   res.residuals.T[:, pick], mask[:, pick].astype(float), res.dof[pick],
                                    tuple(range(n_axes)))[:, None, None]
     return res, cov
 
