@@ -472,20 +472,36 @@ def _prominence_from_windows(signal, line, pos, reach, box=None) -> tuple[np.nda
 def _windows_batch(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_prominence_from_windows` of one batch, in windows as wide as its longest reach."""
     far = int(reach.max())
-    if box is not None:
-        cols = np.clip(pos[:, None] + np.arange(-far, far + 1), -1, box.shape[1] - 2) + 1
-        window = box[line[:, None] + 1, cols]  # (n, 2 far + 1): offsets -far .. far
+    if box is not None:  # (n, 2 far + 1): offsets -far .. far (box has the ring: positions + 1)
+        window = _blocks(box, line + 1, pos + 1 - far, 1, 2 * far + 1)[:, 0]
     else:
-        n_lines, n_pos = signal.shape
-        cols = np.clip(pos[:, None] + np.arange(-far - 1, far + 2), 0, n_pos - 1)  # (n, 2 far + 3)
-        rows = np.clip(line[:, None] + np.arange(-1, 2), 0, n_lines - 1)  # (n, 3)
-        col3 = signal[rows[:, :, None], cols[:, None, :]].astype(np.float32).sum(axis=1)
+        col3 = _blocks(signal, line - 1, pos - far - 1, 3, 2 * far + 3).astype(np.float32).sum(axis=1)
         window = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
     beyond = np.abs(np.arange(-far, far + 1))[None, :] > reach[:, None]
     masked = np.where(beyond, np.float32(np.inf), window)
     left = masked[:, :far].min(axis=1)
     right = masked[:, far + 1 :].min(axis=1)
     return window[:, far] - np.maximum(left, right), window[:, far]
+
+
+def _blocks(a: np.ndarray, top: np.ndarray, left: np.ndarray, height: int, width: int) -> np.ndarray:
+    """``a[top + i, left + j]`` for ``i < height``, ``j < width``: ``(n, height, width)``, the
+    indices clipped to ``a`` (its edge repeats). Blocks inside an array of contiguous rows are
+    copied whole from a sliding-window view, without an index per value (three times faster; in a
+    transposed view, whose rows are strided, the index per value is as fast)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    n_rows, n_cols = a.shape
+    out = np.empty((top.size, height, width), a.dtype)
+    inside = (top >= 0) & (top + height <= n_rows) & (left >= 0) & (left + width <= n_cols)
+    inside &= a.strides[1] == a.itemsize
+    if inside.any():  # (never in an array smaller than a block)
+        out[inside] = sliding_window_view(a, (height, width))[top[inside], left[inside]]
+    edge = np.flatnonzero(~inside)
+    rows = np.clip(top[edge, None] + np.arange(height), 0, n_rows - 1)
+    cols = np.clip(left[edge, None] + np.arange(width), 0, n_cols - 1)
+    out[edge] = a[rows[:, :, None], cols[:, None, :]]
+    return out
 
 
 def _prominence_from_table(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
