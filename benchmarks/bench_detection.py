@@ -239,6 +239,7 @@ def main() -> None:
                               ("COG7 baseline, stripe rows", "cog_stripe", "")):
         wall, cpu, best = t[key]
         print(f"{name:28}{wall:8.2f}{cpu:8.2f}{best:8.2f}{best / t['floor'][2]:9.1f}{target:>8}")
+    print(f"detect_stripe over the COG7 baseline, median CPU in this run: {t['stripe'][1] / t['cog_stripe'][1]:.1f}x")
     print(f"\nload average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
 
 
