@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from scanrig.surface import filter_points
 from scanrig.surface.charts import Claim, estimate_normals, split_charts
@@ -236,13 +237,22 @@ def test_points_a_few_noise_scales_off_their_sheet_do_not_train_it():
     assert left_out >= 0.5 * between_ghosts
 
 
+@pytest.mark.slow
 def test_a_column_of_ghosts_below_the_high_levels_front_does_not_bend_its_fit():
     # trained on its ghosts as well, the high sheet's network followed them down: its fit at
-    # the front lay at 0.71-0.85 of the step (median 0.82); one noise sigma is 0.05 of it.
-    # Without the pull of the ghosts off any surface, the median was 0.956-0.979 on seeds 10-12
-    points, upper, ghost = front_ghost_grid(np.random.default_rng(10))
-    result = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST)
-    front = upper & ghost
-    probe = np.column_stack([points[front, :2], np.full(front.sum(), STEP / 2)])
-    level = project_on_surface(result, probe)[:, 2] / STEP
-    assert np.median(level) >= 0.95
+    # the front (one spacing beyond the level's first true column), in the median over the
+    # column, lay below 0.95 of the step on 31 of 40 draws (0.75-1.03, median draw 0.87); one
+    # noise sigma is 0.05 of it. Without the pull of the ghosts off any surface, 0.89-1.02
+    # (median 0.976), below 0.95 on 7 of the 40: there the ghosts that link into the sheet
+    # (within 4 sigma of their own local planes, which the column tilts) still train it, 1.5-2
+    # sigma down (trained on the true points only, 0.99-1.01 on those draws). Within one sigma
+    # of the level in the median of five draws: three or more of five below it at 7 / 40 is a
+    # 4 % chance, at 31 / 40 a 92 % one
+    levels = []
+    for seed in range(10, 15):
+        points, upper, ghost = front_ghost_grid(np.random.default_rng(seed))
+        result = filter_points(points, rng=np.random.default_rng(0), q=0.25, settings=FAST)
+        front = upper & ghost
+        probe = np.column_stack([points[front, :2], np.full(front.sum(), STEP / 2)])
+        levels.append(np.median(project_on_surface(result, probe)[:, 2] / STEP))
+    assert np.median(levels) >= 1 - SIGMA / STEP, levels
