@@ -155,27 +155,29 @@ class ColourFrames:
     @functools.cached_property
     def laser_box_sums(self) -> np.ndarray:
         """:func:`padded_box_sums` of :attr:`laser_plane`, for the prominence of many candidates
-        along rows and columns (of the raw channel without a dark frame: the same sums, in
-        integers)."""
-        return padded_box_sums(self.laser_plane if self.dark is not None
-                               else self.image[:, :, self.laser_channel])
+        along rows and columns."""
+        return padded_box_sums(self._difference(self.laser_channel))
 
     @functools.cached_property
     def laser_noise(self) -> float:
         """Noise σ of :attr:`laser_plane`, DN (:func:`effective_noise`)."""
-        return effective_noise(self.laser_plane)
+        return effective_noise(self._difference(self.laser_channel))
 
     @functools.cached_property
     def channel_noise(self) -> np.ndarray:
         """Noise σ ``(3,)`` of each raw channel (of frame − dark with a dark frame), DN
         (:func:`effective_noise`): measured once per frame, for every fit of its clipped traces."""
-        out = np.empty(3)
-        for c in range(3):  # the three channels
-            plane = self.image[:, :, c]
-            if self.dark is not None:
-                plane = plane.astype(np.float32) - self.dark[:, :, c]
-            out[c] = effective_noise(plane)
-        return out
+        return np.array([self.laser_noise if c == self.laser_channel else effective_noise(self._difference(c))
+                         for c in range(3)])
+
+    def _difference(self, c: int) -> np.ndarray:
+        """Channel ``c`` minus the dark frame's, DN: :attr:`laser_plane` for the laser's, the raw
+        channel (integers, exact and fast in the filters) without a dark frame."""
+        if self.dark is None:
+            return self.image[:, :, c]
+        if c == self.laser_channel:
+            return self.laser_plane
+        return np.subtract(self.image[:, :, c], self.dark[:, :, c], dtype=np.float32)
 
 
 @dataclass(frozen=True)
