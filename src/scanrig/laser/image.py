@@ -146,22 +146,23 @@ class ColourFrames:
 
     @functools.cached_property
     def laser_plane(self) -> np.ndarray:
-        """The laser channel, minus the dark frame's, ``(H, W)`` float32, DN."""
-        plane = self.image[:, :, self.laser_channel].astype(np.float32)
-        if self.dark is not None:
-            plane -= self.dark[:, :, self.laser_channel]
-        return plane
+        """The laser channel, minus the dark frame's, ``(H, W)``, DN: float32, or without a dark
+        frame the raw channel (integers: exact, and fast in the filters)."""
+        if self.dark is None:
+            return self.image[:, :, self.laser_channel]
+        return np.subtract(self.image[:, :, self.laser_channel], self.dark[:, :, self.laser_channel],
+                           dtype=np.float32)
 
     @functools.cached_property
     def laser_box_sums(self) -> np.ndarray:
         """:func:`padded_box_sums` of :attr:`laser_plane`, for the prominence of many candidates
         along rows and columns."""
-        return padded_box_sums(self._difference(self.laser_channel))
+        return padded_box_sums(self.laser_plane)
 
     @functools.cached_property
     def laser_noise(self) -> float:
         """Noise σ of :attr:`laser_plane`, DN (:func:`effective_noise`)."""
-        return effective_noise(self._difference(self.laser_channel))
+        return effective_noise(self.laser_plane)
 
     @functools.cached_property
     def channel_noise(self) -> np.ndarray:
@@ -171,12 +172,11 @@ class ColourFrames:
                          for c in range(3)])
 
     def _difference(self, c: int) -> np.ndarray:
-        """Channel ``c`` minus the dark frame's, DN: :attr:`laser_plane` for the laser's, the raw
-        channel (integers, exact and fast in the filters) without a dark frame."""
-        if self.dark is None:
-            return self.image[:, :, c]
+        """Channel ``c`` minus the dark frame's, like :attr:`laser_plane`, DN."""
         if c == self.laser_channel:
             return self.laser_plane
+        if self.dark is None:
+            return self.image[:, :, c]
         return np.subtract(self.image[:, :, c], self.dark[:, :, c], dtype=np.float32)
 
 
