@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from scanrig.laser.image import prepare_image
+from scanrig.laser.image import NoiseModel, prepare_image
 
 from .synth import stripe_image
 
@@ -27,3 +27,23 @@ def test_noise_floor_is_the_lowest_noise_of_the_frame(with_dark):
         assert noise.min() <= floor * (1 + li.noise_model.slope * 10.0 / floor**2)
     else:  # the cells' own minimum
         assert floor == noise.min()
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_noise_model_sigma_matches_a_plain_loop_up_to_the_edges(channels):
+    rng = np.random.default_rng(32)
+    shape = (9, 11) if channels == 1 else (9, 11, 3)
+    dark = rng.integers(0, 256, size=shape).astype(np.uint8)
+    weights = None if channels == 1 else (1.0, 0.25, 0.25)
+    model = NoiseModel(dark, weights, offset=0.8, slope=0.05)
+    v, u = (a.ravel() for a in np.mgrid[:9, :11])
+
+    def plain(uk, vk):
+        level = [float(np.dot(dark[min(max(vk + i, 0), 8), min(max(uk + j, 0), 10)],
+                              weights if weights is not None else 1.0))
+                 for i in (-1, 0, 1) for j in (-1, 0, 1)]
+        return np.sqrt(max(0.8 + 0.05 * np.mean(level), 1.0 / 12.0))
+
+    expected = np.array([plain(uk, vk) for uk, vk in zip(u, v)])
+    np.testing.assert_allclose(model.sigma_at(u, v), expected, rtol=1e-6)  # float32
+    np.testing.assert_array_equal(model.sigma_at(u.reshape(9, 11), v.reshape(9, 11)).shape, (9, 11))

@@ -109,15 +109,12 @@ class NoiseModel:
     def sigma_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Noise σ, DN, at integer signal coordinates: the root of the mean variance of the 3 × 3
         pixels around each (the box sum of the detectors has 9 times that variance)."""
-        h, w = self.dark.shape[:2]
-        d = np.arange(-1, 2)
-        rows = np.clip(np.asarray(v)[..., None, None] + d[:, None], 0, h - 1)
-        cols = np.clip(np.asarray(u)[..., None, None] + d[None, :], 0, w - 1)
-        level = self.dark[rows, cols].astype(np.float32)
+        shape = np.shape(u)
+        level = pixel_blocks(self.dark, np.ravel(v) - 1, np.ravel(u) - 1, 3, 3).astype(np.float32)
         if self.weights is not None:
             level = level @ np.asarray(self.weights, np.float32)
         var = self.offset + self.slope * level.mean(axis=(-2, -1))
-        return np.sqrt(np.maximum(var, QUANTIZATION_SIGMA**2)).astype(np.float32)
+        return np.sqrt(np.maximum(var, QUANTIZATION_SIGMA**2)).astype(np.float32).reshape(shape)
 
     @property
     def floor(self) -> float:
@@ -239,6 +236,42 @@ class LaserImage:
         """:func:`padded_box_sums` of :attr:`signal`, computed once per frame for the candidate
         search along rows and columns and their prominence."""
         return padded_box_sums(self.signal)
+
+
+def pixel_blocks(a: np.ndarray, top: np.ndarray, left: np.ndarray, height: int, width: int) -> np.ndarray:
+    """The blocks ``a[top + i, left + j]``, ``i < height``, ``j < width``, of an image, its edge
+    repeated beyond it.
+
+    Blocks inside the image are copied whole from a sliding-window view, without an index per
+    value (three times faster), except from a transposed view, whose rows are strided (there the
+    index per value is as fast).
+
+    Parameters
+    ----------
+    a : (H, W) or (H, W, C) array
+    top, left : (n,) int arrays
+        Block corners, pixels; blocks may reach beyond the image.
+    height, width : int
+        Block size, pixels.
+
+    Returns
+    -------
+    (n, height, width) or (n, height, width, C) array of ``a``'s dtype
+    """
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    n_rows, n_cols = a.shape[:2]
+    out = np.empty((top.size, height, width) + a.shape[2:], a.dtype)
+    inside = (top >= 0) & (top + height <= n_rows) & (left >= 0) & (left + width <= n_cols)
+    inside &= a.strides[1] <= a.strides[0]
+    if inside.any():  # (never in an image smaller than a block)
+        windows = sliding_window_view(a, (height, width), axis=(0, 1))[top[inside], left[inside]]
+        out[inside] = np.moveaxis(windows, (-2, -1), (1, 2))  # the channels (if any) last
+    edge = np.flatnonzero(~inside)
+    rows = np.clip(top[edge, None] + np.arange(height), 0, n_rows - 1)
+    cols = np.clip(left[edge, None] + np.arange(width), 0, n_cols - 1)
+    out[edge] = a[rows[:, :, None], cols[:, None, :]]
+    return out
 
 
 def padded_box_sums(signal: np.ndarray) -> np.ndarray:

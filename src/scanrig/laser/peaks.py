@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import BG_CELL, NOISE_CELL, LaserImage, padded_box_sums
+from scanrig.laser.image import BG_CELL, NOISE_CELL, LaserImage, padded_box_sums, pixel_blocks
 
 _BLOCK_BITS = 2
 BLOCK = 1 << _BLOCK_BITS  # 4
@@ -476,35 +476,15 @@ def _windows_batch(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarra
     """:func:`_prominence_from_windows` of one batch, in windows as wide as its longest reach."""
     far = int(reach.max())
     if box is not None:  # (n, 2 far + 1): offsets -far .. far (box has the ring: positions + 1)
-        window = _blocks(box, line + 1, pos + 1 - far, 1, 2 * far + 1)[:, 0]
+        window = pixel_blocks(box, line + 1, pos + 1 - far, 1, 2 * far + 1)[:, 0]
     else:
-        col3 = _blocks(signal, line - 1, pos - far - 1, 3, 2 * far + 3).astype(np.float32).sum(axis=1)
+        col3 = pixel_blocks(signal, line - 1, pos - far - 1, 3, 2 * far + 3).astype(np.float32).sum(axis=1)
         window = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
     beyond = np.abs(np.arange(-far, far + 1))[None, :] > reach[:, None]
     masked = np.where(beyond, np.float32(np.inf), window)
     left = masked[:, :far].min(axis=1)
     right = masked[:, far + 1 :].min(axis=1)
     return window[:, far] - np.maximum(left, right), window[:, far]
-
-
-def _blocks(a: np.ndarray, top: np.ndarray, left: np.ndarray, height: int, width: int) -> np.ndarray:
-    """``a[top + i, left + j]`` for ``i < height``, ``j < width``: ``(n, height, width)``, the
-    indices clipped to ``a`` (its edge repeats). Blocks inside an array of contiguous rows are
-    copied whole from a sliding-window view, without an index per value (three times faster; in a
-    transposed view, whose rows are strided, the index per value is as fast)."""
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    n_rows, n_cols = a.shape
-    out = np.empty((top.size, height, width), a.dtype)
-    inside = (top >= 0) & (top + height <= n_rows) & (left >= 0) & (left + width <= n_cols)
-    inside &= a.strides[1] == a.itemsize
-    if inside.any():  # (never in an array smaller than a block)
-        out[inside] = sliding_window_view(a, (height, width))[top[inside], left[inside]]
-    edge = np.flatnonzero(~inside)
-    rows = np.clip(top[edge, None] + np.arange(height), 0, n_rows - 1)
-    cols = np.clip(left[edge, None] + np.arange(width), 0, n_cols - 1)
-    out[edge] = a[rows[:, :, None], cols[:, None, :]]
-    return out
 
 
 def _prominence_from_table(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
