@@ -25,8 +25,9 @@ projection with respect to the half's parameters, each half's in its own world f
 ``ratio``, the difference in units of its predicted σ: the pixel differences whitened by that
 covariance, ``sqrt(χ² / dof)`` over its ``dof`` independent directions. The plain
 ``measured_px / predicted_px`` is a poor judge: one or two directions (the principal point)
-carry most of the predicted variance, so it scatters by a factor ~4 between seeds even when
-the σ are right, whereas ``ratio`` averages 7-12 directions. A ``ratio`` above
+carry most of the predicted variance, so it scatters 0.1-2.8 over clean simulated sessions even
+when the σ are right, whereas ``ratio`` averages 7-12 directions: ``ratio² dof`` is then
+chi-square over ``dof`` directions. A ``ratio`` above
 :data:`RATIO_WARN` means the stated uncertainty is too small, and
 :func:`cross_validation_warnings` says so in one line per camera.
 """
@@ -79,9 +80,10 @@ class CameraCrossValidation:
     ratio : float
         The difference in units of its predicted σ: ``sqrt(χ² / dof)``, χ² of the pixel
         differences whitened by their predicted covariance over its ``dof`` independent
-        directions. Near 1 when the σ are right. (``measured_px / predicted_px`` is dominated
-        by the one or two largest directions, typically the principal point, so one pair of
-        halves scatters it by a factor ~4 even when the σ are right.) NaN when nothing is free.
+        directions. Near 1 when the σ are right (``ratio² dof`` is then chi-square over ``dof``
+        directions). (``measured_px / predicted_px`` is dominated by the one or two largest
+        directions, typically the principal point, so it scatters 0.1-2.8 between clean
+        sessions.) NaN when nothing is free.
     dof : int
         Independent directions the ratio is taken over (free intrinsics plus 6 for the pose
         relative to the reference camera, less those the image cannot see).
