@@ -145,10 +145,7 @@ class ColourFrames:
     def laser_plane(self) -> np.ndarray:
         """The laser channel, minus the dark frame's, ``(H, W)``, DN: float32, or without a dark
         frame the raw channel (integers: exact, and fast in the filters)."""
-        if self.dark is None:
-            return self.image[:, :, self.laser_channel]
-        return np.subtract(self.image[:, :, self.laser_channel], self.dark[:, :, self.laser_channel],
-                           dtype=np.float32)
+        return self._difference(self.laser_channel)
 
     @functools.cached_property
     def laser_box_sums(self) -> np.ndarray:
@@ -170,11 +167,12 @@ class ColourFrames:
 
     def _difference(self, c: int) -> np.ndarray:
         """Channel ``c`` minus the dark frame's, like :attr:`laser_plane`, DN."""
-        if c == self.laser_channel:
-            return self.laser_plane
+        import cv2
+
         if self.dark is None:
             return self.image[:, :, c]
-        return np.subtract(self.image[:, :, c], self.dark[:, :, c], dtype=np.float32)
+        # OpenCV on the extracted planes: twice as fast as NumPy on the strided channels
+        return cv2.subtract(cv2.extractChannel(self.image, c), cv2.extractChannel(self.dark, c), dtype=cv2.CV_32F)
 
 
 @dataclass(frozen=True)
@@ -258,20 +256,27 @@ def pixel_blocks(a: np.ndarray, top: np.ndarray, left: np.ndarray, height: int, 
     -------
     (n, height, width) or (n, height, width, C) array of ``a``'s dtype
     """
-    from numpy.lib.stride_tricks import sliding_window_view
-
     n_rows, n_cols = a.shape[:2]
-    out = np.empty((top.size, height, width) + a.shape[2:], a.dtype)
     inside = (top >= 0) & (top + height <= n_rows) & (left >= 0) & (left + width <= n_cols)
     inside &= a.strides[1] <= a.strides[0]
-    if inside.any():  # (never in an image smaller than a block)
-        windows = sliding_window_view(a, (height, width), axis=(0, 1))[top[inside], left[inside]]
-        out[inside] = np.moveaxis(windows, (-2, -1), (1, 2))  # the channels (if any) last
+    if top.size and inside.all():
+        return np.ascontiguousarray(_windows(a, top, left, height, width))
+    out = np.empty((top.size, height, width) + a.shape[2:], a.dtype)
+    whole = np.flatnonzero(inside)
+    if whole.size:  # (never in an image smaller than a block)
+        out[whole] = _windows(a, top[whole], left[whole], height, width)
     edge = np.flatnonzero(~inside)
     rows = np.clip(top[edge, None] + np.arange(height), 0, n_rows - 1)
     cols = np.clip(left[edge, None] + np.arange(width), 0, n_cols - 1)
     out[edge] = a[rows[:, :, None], cols[:, None, :]]
     return out
+
+
+def _windows(a, top, left, height, width) -> np.ndarray:
+    """:func:`pixel_blocks` lying inside ``a``, from its sliding-window view (channels last)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    return np.moveaxis(sliding_window_view(a, (height, width), axis=(0, 1))[top, left], (-2, -1), (1, 2))
 
 
 def padded_box_sums(signal: np.ndarray) -> np.ndarray:
