@@ -13,10 +13,15 @@ import numpy as np
 import pytest
 
 from scanrig.calibration.bundle import bundle_adjust, unpack
-from scanrig.calibration.cross_validation import RATIO_WARN, _projection_jacobian
+from scanrig.calibration.cross_validation import (
+    RATIO_WARN,
+    _projection_jacobian,
+    compare_halves,
+)
 from scanrig.calibration.init import initialise
 from scanrig.calibration.pipeline import calibrate
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
+from scanrig.calibration.uncertainty import covariance
 from scanrig.targets import cube
 
 SIGMA_PX = 0.1
@@ -29,6 +34,9 @@ CLEAN_RATIO_RANGE = (0.5, 2.0)
 BIAS_PX = 0.3
 #: Injected flex: each cube face bowed by 1 mm at its middle (a parabola along its x axis).
 FLEX_M = 0.001
+#: The pixel-space and parameter-space chi-square of the reference camera differ only by the
+#: projection's second-order terms at the halves' (0.1-1 px apart) intrinsics: ~1e-4 relative.
+CHI2_RTOL = 1e-2
 
 
 @pytest.fixture(scope="module")
@@ -94,6 +102,27 @@ def test_projection_jacobian_matches_finite_differences(session):
     # The reference camera sees the points in its own frame: only its intrinsics can move them.
     _, G, cols = _projection_jacobian(result, 0, 0, p_ref)
     assert len(cols) == len(result.state.cameras[0].params)
+
+
+def test_ratio_is_the_chi_square_of_the_halves_intrinsics(session):
+    """The reference camera's points are fixed in its own frame, so only its intrinsics move them:
+    with every intrinsic direction seen, ``ratio² dof`` is the chi-square of the halves' intrinsics
+    difference against ``Σ_odd + Σ_even``, the statistic whose spread the acceptance relies on."""
+    obs, models = session.obs, {c.name: c.model for c in session.cameras}
+    halves = []
+    for parity in (0, 1):
+        sub = obs.subset(np.isin(obs.shot, np.flatnonzero(np.arange(len(obs.shot_names)) % 2 == parity)))
+        init = initialise(sub, TARGET, models)
+        halves.append(bundle_adjust(sub, TARGET, init.cameras, init.world_from_target, init.reference_shot))
+    uncertainties = [covariance(h) for h in halves]
+    check = compare_halves(halves[0], halves, uncertainties, {"cam0": 0.8, "cam1": 0.8}).cameras["cam0"]
+    cols = [h.layout.intrinsics[0] for h in halves]
+    diff = halves[1].x[cols[1]] - halves[0].x[cols[0]]
+    cov = sum(u.covariance[np.ix_(c, c)] for u, c in zip(uncertainties, cols))
+    chi2 = diff @ np.linalg.solve(cov, diff)
+    print(f"cam0: ratio² dof {check.ratio ** 2 * check.dof:.4f} over {check.dof}, intrinsics chi-square {chi2:.4f}")
+    assert check.dof == len(diff)
+    assert check.ratio ** 2 * check.dof == pytest.approx(chi2, rel=CHI2_RTOL)
 
 
 def test_a_camera_with_nothing_free_is_not_judged(session):
