@@ -7,7 +7,8 @@ laser 8 × past full scale on paper, crosstalk 7 % / 5 % into green / blue, a su
 (30 % of the light, 3 px), Bayer demosaicing and JPEG quality 90 (4:2:0); 640 × 480 for accuracy,
 1920 × 1080 for speed. Next to scanrig, in the same run, the baseline of Horus and FabScan: per
 row, the 7-pixel centre of gravity of ``red − (green + blue) / 2`` (laser-off frame subtracted
-where there is one) around the row's maximum.
+where there is one) around the row's maximum. The speed section also times the candidate search
+alone (``max_per_line=0``: nothing is fitted).
 
 Real frames (``tests/data/ciclop-laser-stripes``, CC BY-SA 4.0): a Ciclop scanner's webcam, a red
 line laser on a white bust; rank 0 is counted on the stripe when within 6 px of the row's
@@ -114,9 +115,12 @@ def speed(reps: int) -> None:
     print(f"\nSpeed, one 1920x1080 RGB frame, one core, ms: median wall under the current load, median and "
           f"best CPU of {reps} runs, and the median CPU over the COG7 baseline's in this run "
           f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-    print(f"  {'task':32}{'wall':>9}{'cpu':>9}{'best':>9}{'x COG7':>9}")
+    print("  (candidates alone: detect_stripe with max_per_line=0, every step but the fit)")
+    print(f"  {'task':36}{'wall':>9}{'cpu':>9}{'best':>9}{'x COG7':>9}")
     runs = {"detect_stripe": lambda: detect_stripe(on, color="red"),
             "detect_stripe, laser-off frame": lambda: detect_stripe(on, color="red", dark=off),
+            "candidates alone": lambda: detect_stripe(on, color="red", max_per_line=0),
+            "candidates alone, laser-off frame": lambda: detect_stripe(on, color="red", dark=off, max_per_line=0),
             "COG7 baseline": lambda: cog_rows(on, None)}
     measured = {}
     for name, fn in runs.items():
@@ -129,7 +133,7 @@ def speed(reps: int) -> None:
             wall.append(1e3 * (time.perf_counter() - w0))
         measured[name] = np.median(wall), np.median(cpu), min(cpu)
     for name, (wall, cpu, best) in measured.items():
-        print(f"  {name:32}{wall:9.1f}{cpu:9.1f}{best:9.1f}{cpu / measured['COG7 baseline'][1]:9.1f}")
+        print(f"  {name:36}{wall:9.1f}{cpu:9.1f}{best:9.1f}{cpu / measured['COG7 baseline'][1]:9.1f}")
 
 
 def ciclop() -> None:
