@@ -235,6 +235,10 @@ class LaserImage:
         search along rows and columns and their prominence."""
         return padded_box_sums(self.signal)
 
+    def box_sums_computed(self) -> bool:
+        """Whether :attr:`box_sums` has been computed (by a search of the whole frame)."""
+        return "box_sums" in self.__dict__
+
 
 def pixel_blocks(a: np.ndarray, top: np.ndarray, left: np.ndarray, height: int, width: int) -> np.ndarray:
     """The blocks ``a[top + i, left + j]``, ``i < height``, ``j < width``, of an image, its edge

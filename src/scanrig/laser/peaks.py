@@ -369,7 +369,7 @@ _EROSION_COST_8BIT = 0.7
 
 
 def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach: np.ndarray,
-                    box_sums: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    box_sums: np.ndarray | Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Prominence of candidates along their scan lines (axis 1 of ``signal``), DN of the 3 × 3 box sum.
 
     The box sum at ``pos`` minus the higher of the two lowest box sums on its left and on its
@@ -386,9 +386,10 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
     line, pos : (n,) int arrays
     reach : (n,) int array
         Pixels searched on each side, at least 1.
-    box_sums : callable, optional
-        Returns the box sums of ``signal`` (:func:`~scanrig.laser.image.padded_box_sums`, transposed
-        with it), when the frame keeps them; called only when the whole frame's are needed.
+    box_sums : array or callable, optional
+        The box sums of ``signal`` (:func:`~scanrig.laser.image.padded_box_sums`, transposed with
+        it) when already computed (the windows are read from them, a third of the gathers), or a
+        function returning them, called only when the whole frame's are needed.
 
     Returns
     -------
@@ -398,9 +399,13 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
     """
     if line.size == 0:
         return np.zeros(0, np.float32), np.zeros(0, np.float32)
-    if _windows_cost(reach, False) <= (_EROSION_COST_8BIT if signal.dtype == np.uint8 else _EROSION_COST) * signal.size:
-        return _prominence_from_windows(signal, line, pos, reach)
-    return _prominence_from_erosion(_box_sums_along(signal) if box_sums is None else box_sums(), line, pos, reach)
+    known = box_sums if isinstance(box_sums, np.ndarray) else None
+    if _windows_cost(reach, known is not None) <= (_EROSION_COST_8BIT if signal.dtype == np.uint8
+                                                   else _EROSION_COST) * signal.size:
+        return _prominence_from_windows(signal, line, pos, reach, known)
+    if known is None:
+        known = _box_sums_along(signal) if box_sums is None else box_sums()
+    return _prominence_from_erosion(known, line, pos, reach)
 
 
 def _windows_cost(reach: np.ndarray, from_box: bool) -> int:

@@ -121,8 +121,12 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     noise = li.noise_at(*uv).astype(np.float64)
     reach = reach + run_half
     signal = li.signal if rows else li.signal.T
+
+    def box_sums():
+        return li.box_sums if rows else li.box_sums.T
+
     prominence_dn, height_dn = line_prominence(signal, line, pos, reach,
-                                               lambda: li.box_sums if rows else li.box_sums.T)
+                                               box_sums() if li.box_sums_computed() else box_sums)
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
     keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
