@@ -58,3 +58,21 @@ def test_adam_steps_then_forgets_the_gradients():
     torch.testing.assert_close(p.detach(), torch.tensor([-0.1, 0.1, 0.0]), atol=1e-6, rtol=0)
     opt.zero_grad()
     assert p.grad is None and opt.steps == 1
+
+
+def test_adam_on_a_selection_of_rows_steps_as_on_the_whole():
+    gen = torch.Generator().manual_seed(4)
+    whole = torch.randn(5, 3, generator=gen).requires_grad_()
+    opt = Adam([whole], 0.01, lambda t: 1.0 / (1 + t))
+    grads = torch.randn(6, 5, 3, generator=gen)
+    for g in grads[:3]:
+        whole.grad = g.clone()
+        opt.step()
+    rows = torch.tensor([0, 3])
+    part = whole.detach()[rows].clone().requires_grad_()
+    part_opt = opt.select([part], rows)
+    for g in grads[3:]:
+        whole.grad, part.grad = g.clone(), g[rows].clone()
+        opt.step()
+        part_opt.step()
+    assert part_opt.steps == opt.steps and torch.equal(part.detach(), whole.detach()[rows])

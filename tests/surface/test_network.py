@@ -14,7 +14,8 @@ from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.network import HeightFieldNets, _Tanh
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.robust_fit import (FitSettings, _adam, _Blocks, _bounded_by_heldout, _heldout_prediction,
-                                      _output_layer_irls, _size_batches, _weighted_solve, fit_charts_by_size)
+                                      _output_layer_irls, _size_batches, _weighted_least_squares, _weighted_solve,
+                                      fit_charts_by_size)
 
 from .conftest import SIGMA, tilted_plane_with_outliers
 
@@ -218,3 +219,45 @@ def test_monotone_output_layer_irls_never_raises_a_weight_and_leaves_the_optimum
         optimum = _weighted_solve(feats, rows.t, capped.sqrt(), rows.owner, rows.n_copies).float()
     torch.testing.assert_close(nets.weights[-1][:, :, 0], optimum[:, :-1], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(nets.biases[-1][:, 0, 0], optimum[:, -1], rtol=1e-5, atol=1e-6)
+
+
+def test_converged_copies_stop_where_they_were_at_the_check():
+    # a tolerance no loss can meet freezes every copy at the first comparison (epoch 10): they
+    # must hold the hidden layers of 10 steps of the full schedule and their output layer's
+    # optimum for them, as the plain loop leaves them
+    nets, rows, weight, *_ = _random_copies(5)
+    every, epochs = 10, 100
+    frozen = HeightFieldNets.concatenate([nets], torch.arange(rows.n_copies))
+    stopped = _weighted_least_squares(frozen, rows, weight, FitSettings(converge_every=every, converge_tol=1e9),
+                                      epochs)
+    assert stopped.tolist() == [every] * rows.n_copies
+    opt = _adam(nets, FitSettings(), epochs)
+    for _ in range(every):
+        loss = 0.5 * (weight.float() * rows.residual(nets, weight).square()).sum(dim=1) / rows.n_train
+        opt.zero_grad()
+        loss.sum().backward()
+        opt.step()
+    rows.residual(nets, weight)
+    for mine, reference in zip(frozen.parameters(), nets.parameters()):
+        assert torch.equal(mine, reference)
+    never = HeightFieldNets.concatenate([frozen], torch.arange(rows.n_copies))
+    stopped = _weighted_least_squares(never, rows, weight, FitSettings(converge_every=every, converge_tol=-1e9), epochs)
+    assert stopped.tolist() == [epochs] * rows.n_copies
+
+
+def test_a_subset_of_copies_is_written_back_alone_and_its_blocks_cut_alike():
+    nets, rows, *_ = _random_copies(6)
+    before = [p.detach().clone() for p in nets.parameters()]
+    copies = torch.tensor([1, 4])
+    part = nets.subset(copies)
+    with torch.no_grad():
+        for p in part.parameters():
+            p.add_(1.0)
+    nets.assign(copies, part)
+    others = torch.tensor([0, 2, 3, 5])
+    for p, p0 in zip(nets.parameters(), before):
+        torch.testing.assert_close(p[copies], p0[copies] + 1.0)
+        assert torch.equal(p[others], p0[others])
+    own_rows, blocks = rows.select(copies)
+    assert own_rows.n_copies == 2 and set(own_rows.owner.tolist()) == {0, 1}
+    assert torch.equal(own_rows.x, rows.x[blocks]) and torch.equal(rows.owner[blocks] == 4, own_rows.owner == 1)

@@ -40,6 +40,15 @@ class Adam:
         self._mean = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
         self._square = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
 
+    def select(self, params: Sequence[torch.Tensor], rows: torch.Tensor) -> Adam:
+        """This optimiser on ``params``, which hold the rows ``rows`` (int tensor, first axis) of
+        its own parameters: same schedule and step count, the moments of those rows."""
+        out = Adam(params, self.lr, self.factor)
+        out.steps = self.steps
+        out._mean = [m[rows] for m in self._mean]
+        out._square = [v[rows] for v in self._square]
+        return out
+
     def lr_at(self, step: int) -> float:
         """The learning rate of step ``step`` (0 = the first)."""
         return self.lr * self.factor(step)

@@ -112,6 +112,17 @@ class HeightFieldNets(torch.nn.Module):
                     mine[i] = torch.nn.Parameter(torch.cat([t[i] for t in theirs])[order])
         return out
 
+    def subset(self, copies: torch.Tensor) -> HeightFieldNets:
+        """The copies ``copies`` (int tensor) as a batch of their own, with copied weights."""
+        return HeightFieldNets.concatenate([self], copies)
+
+    @torch.no_grad()
+    def assign(self, copies: torch.Tensor, part: HeightFieldNets) -> None:
+        """Set the copies ``copies`` (int tensor) to the copies of ``part``, in order."""
+        for mine, theirs in ((self.weights, part.weights), (self.biases, part.biases)):
+            for p, q in zip(mine, theirs):
+                p[copies] = q
+
     def features(self, uv: torch.Tensor, copies: torch.Tensor | None = None) -> torch.Tensor:
         """Activations of the last hidden layer, unit-major.
 
