@@ -19,7 +19,7 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.colour_fit import fit_clipped
-from scanrig.laser.continuity import rank_by_continuity
+from scanrig.laser.continuity import SAME_PEAK_PX, rank_by_continuity
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.luma import luma_difference
@@ -155,6 +155,8 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
                    prominence=wide.prominence[index])
         parts.append(fit)
     cols = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
+    keep = distinct_peaks(cols["line"], cols["centre"], cols["var"])
+    cols = {k: a[keep] for k, a in cols.items()}
     centre = cols.pop("centre")
     var = cols.pop("var")
     zero = np.zeros_like(var)
@@ -168,6 +170,38 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
     cols["rank"] = rank_by_continuity(cols["line"], centre, cols.pop("prominence"))
     cols["line"] = cols["line"].astype(np.int32)
     return cols
+
+
+def distinct_peaks(line: np.ndarray, centre: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """Keep-mask of the fits that are distinct peaks: fits on one line whose centres follow each
+    other within ``SAME_PEAK_PX`` are one peak fitted twice (two seeds a few pixels apart that
+    converged onto it), and of them the best determined (smallest ``var``) stays.
+
+    Parameters
+    ----------
+    line : (n,) int array
+        Scan line of each fit.
+    centre : (n,) float array
+        Fitted centre along its line, px.
+    var : (n,) float array
+        Variance of the centre, px².
+
+    Returns
+    -------
+    (n,) bool array
+    """
+    order = np.lexsort((centre, line))
+    line, centre = line[order], centre[order]
+    # a peak's group starts where the line changes or the centre moves on by more than SAME_PEAK_PX
+    starts = np.r_[True, (line[1:] != line[:-1]) | (centre[1:] - centre[:-1] > SAME_PEAK_PX)]
+    keep = np.ones(order.size, bool)
+    if starts.all():
+        return keep
+    group = np.cumsum(starts)
+    best = np.lexsort((var[order], group))  # by group, then variance: the first of each group stays
+    keep[:] = False
+    keep[order[best[np.r_[True, group[best][1:] != group[best][:-1]]]]] = True
+    return keep
 
 
 def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> dict[str, np.ndarray]:
