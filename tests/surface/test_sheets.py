@@ -242,12 +242,12 @@ def test_a_column_of_ghosts_below_the_high_levels_front_does_not_bend_its_fit():
     # trained on its ghosts as well, the high sheet's network followed them down: its fit at
     # the front (one spacing beyond the level's first true column), in the median over the
     # column, lay below 0.95 of the step on 31 of 40 draws (0.75-1.03, median draw 0.87); one
-    # noise sigma is 0.05 of it. Without the pull of the ghosts off any surface, 0.89-1.02
-    # (median 0.976), below 0.95 on 7 of the 40: there the ghosts that link into the sheet
-    # (within 4 sigma of their own local planes, which the column tilts) still train it, 1.5-2
-    # sigma down (trained on the true points only, 0.99-1.01 on those draws). Within one sigma
-    # of the level in the median of five draws: three or more of five below it at 7 / 40 is a
-    # 4 % chance, at 31 / 40 a 92 % one
+    # noise sigma is 0.05 of it. Without the ghosts off any surface, below 0.95 on 7 of the 40
+    # (0.89-1.02): the ghosts linked into the sheet through the local planes that their column
+    # tilts still trained it, 1.5-2 sigma down (on the true points only, 0.99-1.01 on those
+    # draws). Without those as well, on 1 (0.94-1.02, median 0.998). Within one sigma of the
+    # level in the median of five draws: three or more of five below it at 1 / 40 is a 0.02 %
+    # chance, at 7 / 40 a 4 % one, at 31 / 40 a 92 % one
     levels = []
     for seed in range(10, 15):
         points, upper, ghost = front_ghost_grid(np.random.default_rng(seed))

@@ -42,15 +42,20 @@ are kept. A chart holding a step is therefore cut into *sheets* (our choice):
    sheet becomes a chart of its own, with its own frame, reach and window and members from its
    own place only; its :class:`~scanrig.surface.charts.Claim` keeps its extrapolation across the
    step out of :func:`~scanrig.surface.filter.project_on_surface`.
-4. a point that is on no surface (item 1) and lies between ``TRAIN_CUT`` and ``TRAIN_FAR``
-   noise scales from the trimmed plane through its sheet's 16 inner points nearest to it
-   does not train the sheet's network (:attr:`~scanrig.surface.charts.Chart.trained`); it is
-   still judged by the fit. At a sheet's front no point beyond holds the network, and edge
-   ghosts a few noise scales off the level pulled it to them (protocol step at 20 % outliers,
-   data seeds 120-129: transition widths of 1.6-2.6 spacings on four draws). Points farther
-   off are left to the robust loss, which gives them no weight unless the network reaches
-   them: a sampled side of an object, which the chart has to hold (on the stripe demo,
-   leaving out every point beyond ``TRAIN_CUT`` flagged 146-191 true points instead of 83-92).
+4. a point that is on no surface (item 1), or on one of the sheets without being one of its
+   inner points, and lies between ``TRAIN_CUT`` and ``TRAIN_FAR`` noise scales from the
+   trimmed plane through its sheet's 16 inner points nearest to it does not train the sheet's
+   network (:attr:`~scanrig.surface.charts.Chart.trained`); it is still judged by the fit. At
+   a sheet's front no point beyond holds the network, and edge ghosts a few noise scales off
+   the level pulled it to them (protocol step at 20 % outliers, data seeds 120-129:
+   transition widths of 1.6-2.6 spacings on four draws). A column of such ghosts tilts their
+   own local planes, and those linked into the sheet through them trained it (a 48 x 48 step
+   with a ghost 3-8 noise scales below the high level at every site of its first column: the
+   fit there 1.5-2 noise scales low on 7 of 40 draws; left out, on 1). Points farther off,
+   and points on a surface that is none of the sheets, are left to the robust loss, which
+   gives them no weight unless the network reaches them: a sampled side of an object, which
+   the chart has to hold (on the stripe demo, leaving out every point beyond ``TRAIN_CUT``
+   flagged 146-191 true points instead of 83-92).
 
 Outliers are rarely on a surface (uniform gross errors are isolated, a patch of reflections
 spreads the kept half of its neighbourhood over its height range), so they seldom form
@@ -72,8 +77,9 @@ from scanrig.surface.local_start import SURFACE_SCALE_FACTOR, neighbour_planes, 
 
 #: Neighbours of each point that it may be linked to.
 LINK_NEIGHBOURS = 8
-#: A point off any surface whose distance from its sheet's inner plane lies between these (in
-#: noise scales) does not train the sheet's network (see the module's item 4).
+#: A point off any surface, or on a sheet but none of its inner points, whose distance from its
+#: sheet's inner plane lies between these (in noise scales) does not train the sheet's network
+#: (see the module's item 4).
 TRAIN_CUT, TRAIN_FAR = 2.5, 12.0
 #: Planes are compared in slope (:func:`_labels_and_scale`) only where both points' neighbours
 #: spread over an area, and the sheets this comparison cuts count only where they do: the
@@ -262,7 +268,7 @@ def _sheets_of(points: np.ndarray, normals: np.ndarray, chart: Chart, *, q: floa
     owner[labelled[inner]] = sheet[inner]
     claim = Claim(points[members], owner, 0, chart.rotation[2])
     gap = _inner_plane_gap(local, owner, labelled[inner], sheet[inner])
-    untrained = (label < 0) & (gap > TRAIN_CUT * sigma) & (gap <= TRAIN_FAR * sigma)
+    untrained = ((label < 0) | np.isin(label, sheet_ids)) & (gap > TRAIN_CUT * sigma) & (gap <= TRAIN_FAR * sigma)
     sheets = [chart_from_core(points, normals, members[(owner == s) & is_core], members[owner == s], q=q,
                               cos_max=cos_max, overlap=overlap, claim=replace(claim, own=s))
               for s in range(len(sheet_ids))]
