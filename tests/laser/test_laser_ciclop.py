@@ -7,6 +7,7 @@ import pytest
 
 import scanrig
 from scanrig.io.session import read_image
+from scanrig.laser.image import channel_clip_levels
 from tests.data_paths import real_data
 
 CICLOP = real_data("ciclop-laser-stripes")
@@ -38,6 +39,20 @@ def test_rank0_is_on_the_bust_stripe(bust, use_dark):
     assert rows.size > 1000
     on_stripe = np.abs(found[rows] - np.argmax(added[rows], axis=1)) < ON_STRIPE_PX
     assert on_stripe.mean() >= 0.99
+
+
+#: This webcam's processing clips red here (frames of the board), DN.
+WEBCAM_RED_CLIP_DN = 180
+
+
+def test_the_webcams_clip_levels_are_found(bust):
+    """Red piles up at 180 DN in the board's frames (145,139 pixels of the pair at 180, 6,890 at 179;
+    none above 180 in the laser-off frame, 158 in the laser-on frame); the bust's red clips at 255
+    and nothing else clips."""
+    folder = CICLOP / "laser_on_pattern"
+    on, off = read_image(folder / "laser-0-255-255-8-x.png"), read_image(folder / "laser-background-0-255-255-8-x.png")
+    np.testing.assert_array_equal(channel_clip_levels(on, off), [WEBCAM_RED_CLIP_DN, 255, 255])
+    np.testing.assert_array_equal(channel_clip_levels(*bust), [255, 255, 255])
 
 
 #: Undistorted columns of the two lasers on the board, px.
@@ -94,7 +109,9 @@ def test_the_two_stripes_on_the_board_are_straight_to_their_sigma(board_lines):
                    "within 1 px of the line: the glint's flanks (3-19 px off) are the only ones there; without "
                    "those rows 0.45 px (rows 500-560 sit 1-1.5 px off). Right laser: this camera's red saturates "
                    "at 180 DN, so its 6-px plateau is not seen as clipped and carries two peaks 2.8 px apart, "
-                   "both on the one continuous trace (with saturation_level=181-185: 0.66-0.73 px)")
+                   "both on the one continuous trace. With saturation_level='auto' (red found clipped at 180) "
+                   "4.5 and 0.68 px: green reads 0 on the plateau (the camera's processing) and red enters it "
+                   "within a pixel, so the clipped fit has no crosstalk and hardly a flank to go on")
 def test_every_point_of_the_two_stripes_on_the_board_is_on_its_line(board_lines):
     """Every rank <= 1 centre inside the board, not only those a robust gate keeps, lies on its
     laser's straight line to ``STRAIGHT_RMS_PX``: a glint must be ranked below the stripe, or absent."""

@@ -15,7 +15,10 @@ mostly dark pixels underestimates by far at a bright pixel (a glint of room ligh
 metal, the edge of a lit part). A cell-based threshold there let the dark frame's own noise,
 the same in every frame, pass as a faint spot at the same pixel frame after frame.
 
-Clipping. Pixels whose laser channel is within ``CLIP_MARGIN`` of the saturation level are flagged
+Clipping. The saturation level is the dtype's maximum, a given level, or (``"auto"``) each
+channel's found from the frame (:func:`channel_clip_levels`): a webcam's processing can clip a
+channel well below the dtype's maximum. Pixels whose laser channel is within ``CLIP_MARGIN`` of
+the saturation level are flagged
 (JPEG and demosaicing spread a clipped plateau a few DN below the clip, so an exact test misses
 most of it); the fit excludes them (the unclipped flanks, and in a colour frame the other
 channels' crosstalk, still fix the centre: :mod:`scanrig.laser.colour_fit`) and candidate finding
@@ -66,6 +69,18 @@ _PTC_MIN_SAMPLES = 50
 _PTC_SLOPE_MARGIN = 2.0
 #: A pixel within this fraction of the saturation level counts as clipped.
 CLIP_MARGIN = 0.03
+#: A channel clips below the dtype's maximum at a value ``L`` (see :func:`channel_clip_levels`) that
+#: holds at least ``_PILE_MIN_SHARE`` of the pixels (and ``_PILE_MIN_PIXELS``), ``_PILE_RATIO``
+#: times as many as any of the ``_PILE_BELOW`` values under it (gain can leave every third value
+#: empty, so not only the next one), at most ``_ABOVE_SHARE`` of its count above it, and whose
+#: plateau's neighbouring pixels have a median below ``L`` but at least ``_RIM_FRACTION`` of the
+#: way up from the channel's median to ``L``.
+_PILE_MIN_SHARE = 1e-4
+_PILE_MIN_PIXELS = 16
+_PILE_RATIO = 5.0
+_PILE_BELOW = 4
+_ABOVE_SHARE = 0.01
+_RIM_FRACTION = 0.5
 #: Change of the non-laser channels, in noise σ, that shows the laser in a pixel clipped in both
 #: the frame and the dark frame.
 _CROSSTALK_SIGMAS = 6.0
@@ -132,14 +147,14 @@ class ColourFrames:
         RGB; ``dark`` is None without a laser-off frame.
     laser_channel : int
         Index of the laser's colour (0 red, 1 green, 2 blue).
-    clip_level : float
-        DN from which a pixel counts as clipped (the saturation level less ``CLIP_MARGIN``).
+    clip_level : (3,) float array
+        DN from which a pixel counts as clipped, per channel (its saturation level less ``CLIP_MARGIN``).
     """
 
     image: np.ndarray
     dark: np.ndarray | None
     laser_channel: int
-    clip_level: float
+    clip_level: np.ndarray
 
     @functools.cached_property
     def laser_plane(self) -> np.ndarray:
@@ -327,7 +342,7 @@ def prepare_image(
     color: str = "grey",
     dark: np.ndarray | None = None,
     roi: tuple[int, int, int, int] | None = None,
-    saturation_level: float | None = None,
+    saturation_level: float | str | None = None,
     noise_sigma: float | None = None,
 ) -> LaserImage:
     """Laser signal, saturation mask, background and noise of one frame.
@@ -342,9 +357,11 @@ def prepare_image(
         Laser-off frame of the same camera, subtracted after colour selection.
     roi : (u0, v0, u1, v1) ints, optional
         Region of interest, pixels, end-exclusive. Default: the whole frame.
-    saturation_level : float, optional
-        DN at which a pixel is clipped. Default: the dtype's maximum (255 or 65535); set it for a
-        12-bit camera stored in 16-bit files.
+    saturation_level : float or "auto", optional
+        DN at which a pixel is clipped, in every channel; set it for a 12-bit camera stored in
+        16-bit files. ``"auto"``: each channel's, found from the frame and the dark frame
+        (:func:`channel_clip_levels`; for webcams that clip below 255). Default: the dtype's
+        maximum (255 or 65535).
     noise_sigma : float, optional
         Known noise standard deviation of the signal, DN; estimated from the frame when omitted.
 
@@ -371,17 +388,23 @@ def prepare_image(
     image = image[v0:v1, u0:u1]
     dark = None if dark is None else dark[v0:v1, u0:u1]
     full_scale = float(np.iinfo(image.dtype).max)
-    if saturation_level is None:
-        saturation_level = full_scale
-    elif not 0 < saturation_level <= full_scale:
-        raise InputError(f"saturation_level must be in (0, {full_scale:g}] for {image.dtype} images, "
-                         f"got {saturation_level}")
-
-    clip_level = saturation_level - CLIP_MARGIN * full_scale
-    channel = _laser_channel(image, color)
-    saturated = None
-    if channel.max() >= clip_level:
-        saturated = _close_gaps(channel >= clip_level)
+    if isinstance(saturation_level, str):
+        if saturation_level != "auto":
+            raise InputError(f"saturation_level must be a number of DN or 'auto', got {saturation_level!r}")
+        levels = channel_clip_levels(image, dark)
+    else:
+        if saturation_level is None:
+            saturation_level = full_scale
+        elif not 0 < saturation_level <= full_scale:
+            raise InputError(f"saturation_level must be in (0, {full_scale:g}] for {image.dtype} images, "
+                             f"got {saturation_level}")
+        levels = np.full(image.shape[2] if image.ndim == 3 else 1, float(saturation_level))
+    # the level a clipped pixel of the signal stands for: its channel's, or the brightest channel's (grey)
+    saturation_level = float(levels.max() if image.ndim == 2 or color == "grey" else levels[_CHANNEL[color]])
+    clip_levels = levels * (1.0 - CLIP_MARGIN)
+    saturated = _clipped(image, color, clip_levels)
+    if saturated is not None:
+        saturated = _close_gaps(saturated)
     signal = _signal(image, color)
     if dark is not None:
         dark_signal = np.asarray(_signal(dark, color), np.float32)  # a copy only of integer frames
@@ -394,13 +417,13 @@ def prepare_image(
         signal[saturated] = (saturation_level if dark is None
                              else saturation_level - np.maximum(dark_signal[saturated], 0.0))
         if dark is not None:
-            dark_channel = _laser_channel(dark, color)
-            if dark_channel.max() >= clip_level:
-                dark_saturated = saturated & (dark_channel >= clip_level)
+            dark_clipped = _clipped(dark, color, clip_levels)
+            if dark_clipped is not None:
+                dark_saturated = saturated & dark_clipped
                 signal[dark_saturated] = 0.0  # until the other channels say otherwise (below)
     colour = None
     if image.ndim == 3 and color != "grey":
-        colour = ColourFrames(image, dark, _CHANNEL[color], float(clip_level))
+        colour = ColourFrames(image, dark, _CHANNEL[color], clip_levels)
     model = None
     if noise_sigma is None:
         rows, high_pass = _high_pass_bands(signal)
@@ -471,13 +494,74 @@ def _check_roi(roi, shape) -> tuple[int, int, int, int]:
     return u0, v0, u1, v1
 
 
-def _laser_channel(image: np.ndarray, color: str) -> np.ndarray:
-    """The raw channel that carries the laser (the whole image when grey)."""
+def _clipped(image: np.ndarray, color: str, clip_levels: np.ndarray) -> np.ndarray | None:
+    """Pixels ``(H, W)`` whose laser channel (any channel for a grey laser) is at or above its
+    clip level ``clip_levels`` ``(C,)``, DN; None when there are none."""
     if image.ndim == 2:
-        return image
-    if color == "grey":
-        return image.max(axis=2)
-    return image[:, :, _CHANNEL[color]]
+        clipped = image >= clip_levels[0]
+    elif color == "grey":
+        clipped = (image >= clip_levels).any(axis=2)
+    else:
+        clipped = image[:, :, _CHANNEL[color]] >= clip_levels[_CHANNEL[color]]
+    return clipped if clipped.any() else None
+
+
+def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np.ndarray:
+    """The level, DN, at which each channel of a camera clips, found from its frames.
+
+    Webcams often clip a channel below the dtype's maximum (their processing maps the sensor's
+    full scale to a lower value), and the clipped pixels then pile up at that one value. A value
+    ``L`` of a channel's histogram (frame and dark frame together) is its clip level when
+
+    - it holds many pixels (``_PILE_MIN_SHARE`` of them, at least ``_PILE_MIN_PIXELS``), at least
+      ``_PILE_RATIO`` times as many as each of the ``_PILE_BELOW`` values under it: noise spreads
+      an unclipped flat area over several values, clipping stacks it on one;
+    - few pixels lie above it (``_ABOVE_SHARE`` of its count): it is the top of the channel's range;
+    - the pixels next to the plateau are bright too, but below it (their median is below ``L``
+      and at least ``_RIM_FRACTION`` of the way up from the channel's median to ``L``): the light
+      continues past the clip, so its run is entered from high values, whereas a flat printed or
+      rendered area ends in a step down to the scene, or up to a brighter trace crossing it.
+
+    The highest such value is the level; the dtype's maximum when there is none.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) uint8 or uint16 array
+        The frame, DN.
+    dark : array like ``image``, optional
+        The laser-off frame of the same camera settings.
+
+    Returns
+    -------
+    (C,) float array
+        Clip level of each channel, DN (``C = 1`` for an ``(H, W)`` frame).
+    """
+    import cv2
+
+    full_scale = int(np.iinfo(image.dtype).max)
+    frames = [np.ascontiguousarray(f if f.ndim == 3 else f[:, :, None]) for f in (image, dark) if f is not None]
+    levels = np.full(frames[0].shape[2], float(full_scale))
+    for c in range(levels.size):
+        # OpenCV's histogram of the interleaved frame: several times faster than np.bincount of a plane
+        counts = sum(cv2.calcHist([f], [c], None, [full_scale + 1], [0, full_scale + 1]).ravel() for f in frames)
+        counts = counts.astype(np.int64)
+        above = counts.sum() - np.cumsum(counts)
+        below = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(_PILE_BELOW, counts.dtype), counts[:-1]],
+                                                         _PILE_BELOW).max(axis=1)
+        pile = ((counts >= max(_PILE_MIN_PIXELS, _PILE_MIN_SHARE * counts.sum()))
+                & (counts >= _PILE_RATIO * below) & (above <= _ABOVE_SHARE * counts))
+        pile[full_scale] = False  # the dtype's maximum is the default anyway
+        median = int(np.searchsorted(np.cumsum(counts), 0.5 * counts.sum()))
+        for level in np.flatnonzero(pile)[::-1]:
+            rim = []
+            for f in frames:
+                plateau = (f[:, :, c] == level).view(np.uint8)
+                ring = cv2.dilate(plateau, np.ones((3, 3), np.uint8)) > plateau
+                rim.append(f[:, :, c][ring])
+            if median + _RIM_FRACTION * (level - median) <= np.median(np.concatenate(rim)) < level:
+                levels[c] = float(level)
+                break
+    return levels
 
 
 def _signal(image: np.ndarray, color: str) -> np.ndarray:

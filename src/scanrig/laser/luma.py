@@ -130,8 +130,8 @@ def _laser_share(colour: ColourFrames, rows: slice, luma_lines: np.ndarray) -> f
     on, off = colour.image[rows, :, k], colour.dark[rows, :, k]
     added = on.astype(np.float32) - off
     sigma = MAD_TO_SIGMA * np.median(np.abs(added - np.median(added)))
-    lit = ((added > _LASER_SIGMAS * max(float(sigma), QUANTIZATION_SIGMA)) & (on < colour.clip_level)
-           & (off < colour.clip_level))
+    lit = ((added > _LASER_SIGMAS * max(float(sigma), QUANTIZATION_SIGMA)) & (on < colour.clip_level[k])
+           & (off < colour.clip_level[k]))
     return float(np.median(luma_lines[lit] / added[lit])) if lit.any() else float("nan")
 
 
