@@ -136,15 +136,6 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
     saturated = None if li.saturated is None else (li.saturated if rows else li.saturated.T)
     clipped = cand.run_half > 0 if li.colour is not None else np.zeros(cand.line.size, bool)
     parts = []
-    if not clipped.all():
-        plain = cand.take(~clipped)
-        if (li.colour is not None and li.colour.dark is not None
-                and luma_difference(li.colour).carries_laser(li.colour.laser_channel)):
-            parts.append(_fit_luma(li, rows, saturated, plain, max_width_px))
-        else:
-            uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-            parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
-                                    max_width_px, plain.prominence))
     if clipped.any():
         wide = cand.take(clipped)
         fit = fit_clipped(li.colour, rows, wide.line, wide.pos,
@@ -154,6 +145,21 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
         fit.update(line=wide.line[index], sigma_px=np.sqrt(fit["var"]), saturated=np.ones(index.size, bool),
                    prominence=wide.prominence[index])
         parts.append(fit)
+        # A colour fit that converged elsewhere followed a step in reflectance under the beam (its
+        # background is one level per channel; a printed edge is a step in all three): fitted as
+        # unclipped instead, on the laser signal, where grey steps cancel, its clipped pixels left out.
+        converged = np.zeros(wide.line.size, bool)
+        converged[index] = True
+        clipped[np.flatnonzero(clipped)[~converged]] = False
+    if not clipped.all():
+        plain = cand.take(~clipped)
+        if (li.colour is not None and li.colour.dark is not None
+                and luma_difference(li.colour).carries_laser(li.colour.laser_channel)):
+            parts.append(_fit_luma(li, rows, saturated, plain, max_width_px))
+        else:
+            uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
+            parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
+                                    max_width_px, plain.prominence))
     cols = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     keep = distinct_peaks(cols["line"], cols["centre"], cols["var"])
     cols = {k: a[keep] for k, a in cols.items()}
