@@ -40,7 +40,7 @@ def detect_stripe(
     roi: tuple[int, int, int, int] | None = None,
     direction: str = "auto",
     noise_sigma: float | None = None,
-    saturation_level: float | None = None,
+    saturation_level: float | str | None = None,
     k_detect: float = 6.0,
     min_separation_px: float = 3.0,
     max_width_px: float = 3.0,
@@ -64,8 +64,10 @@ def detect_stripe(
         Scan lines: rows (for a near-vertical stripe), columns, or decided locally from the frame.
     noise_sigma : float, optional
         Known noise σ of the signal, DN; estimated robustly from the frame when omitted.
-    saturation_level : float, optional
-        DN at which pixels clip (default: dtype maximum). Clipped pixels are left out of the fit.
+    saturation_level : float or "auto", optional
+        DN at which pixels clip (default: dtype maximum); ``"auto"`` finds each channel's level from
+        the frames (:func:`~scanrig.laser.image.channel_clip_levels`). Clipped pixels are left out of
+        the fit.
     k_detect : float
         Detection threshold: the 3 × 3 box sum above background, in units of its noise.
     min_separation_px : float
