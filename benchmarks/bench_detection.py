@@ -12,7 +12,7 @@ amplitude 180 DN over 10 DN, noise 2 DN, rounded), next to:
 - for speed, the time to read the frame once (``image.max()``), the floor of any detector.
 
 The "dark frame" rows subtract a laser-off frame of the same background and noise, which switches
-on the per-pixel noise model (:class:`scanrig.laser.image.NoiseModel`, fitted in every frame).
+on the per-pixel noise model (:class:`scanrig.laser.noise.NoiseModel`, fitted in every frame).
 
 Timings are on one core (OpenCV and BLAS limited to one thread): median wall and median and best
 CPU time (``time.process_time``, all threads of the process) of repeated runs.

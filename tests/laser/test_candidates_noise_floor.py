@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from scanrig.laser.image import NoiseModel, prepare_image
+from scanrig.laser.image import prepare_image
+from scanrig.laser.noise import NoiseModel
 
 from .synth import stripe_image
 

@@ -1,10 +1,11 @@
-"""The clip level of each channel, found from the frame (scanrig.laser.image.channel_clip_levels)."""
+"""The clip level of each channel, found from the frame (scanrig.laser.clip_level.channel_clip_levels)."""
 
 import numpy as np
 import pytest
 
 from scanrig.errors import InputError
-from scanrig.laser.image import CLIP_MARGIN, channel_clip_levels, prepare_image
+from scanrig.laser.clip_level import channel_clip_levels
+from scanrig.laser.image import CLIP_MARGIN, prepare_image
 
 SHAPE = (240, 320)
 #: Scene level and noise of the synthetic frames, DN.

@@ -7,7 +7,7 @@ import pytest
 
 import scanrig
 from scanrig.io.session import read_image
-from scanrig.laser.image import channel_clip_levels
+from scanrig.laser.clip_level import channel_clip_levels
 from tests.data_paths import real_data
 
 CICLOP = real_data("ciclop-laser-stripes")

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from scanrig.errors import InputError, ShapeError
-from scanrig.laser.image import QUANTIZATION_SIGMA, estimate_noise, prepare_image
+from scanrig.laser.image import prepare_image
+from scanrig.laser.noise import QUANTIZATION_SIGMA, estimate_noise
 
 from .synth import quantize, spot_image
 

@@ -2,8 +2,12 @@
 
 Modules, bottom to top:
 
+- :mod:`~scanrig.laser.pixels`: pixel blocks, 3 × 3 box sums and per-cell lookups.
+- :mod:`~scanrig.laser.noise`: the signal's noise, per cell or per pixel from the laser-off frame.
+- :mod:`~scanrig.laser.clip_level`: the level at which each channel clips, from the frames.
 - :mod:`~scanrig.laser.image`: laser-colour channel, dark-frame subtraction, region of interest,
-  saturation mask, background and noise estimates.
+  saturation mask, background; the signal the detectors see.
+- :mod:`~scanrig.laser.luma`: the luma difference of a colour frame and its laser-off frame.
 - :mod:`~scanrig.laser.fit`: pixel-integrated Gaussian models and a Levenberg–Marquardt fit
   vectorised over all candidates at once.
 - :mod:`~scanrig.laser.crb`: the Cramér–Rao bound of the centre, for tests and benchmarks.
@@ -12,6 +16,7 @@ Modules, bottom to top:
 - :mod:`~scanrig.laser.stripe_candidates`: stripe candidates that rise above both flanks, each
   stripe crossed steeply.
 - :mod:`~scanrig.laser.colour_fit`: clipped traces of colour frames, fitted from every channel.
+- :mod:`~scanrig.laser.continuity`: stripe candidates ranked by the length of their trace.
 - :mod:`~scanrig.laser.spots`, :mod:`~scanrig.laser.stripes`: ``detect_spots`` and
   ``detect_stripe``, one table row per candidate.
 - :mod:`~scanrig.laser.traces`: the ``traces.parquet`` schema, reading and atomic writing.

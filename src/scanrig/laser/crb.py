@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.laser.fit import model_1d, model_2d
-from scanrig.laser.image import QUANTIZATION_SIGMA
+from scanrig.laser.noise import QUANTIZATION_SIGMA
 
 
 def effective_noise(noise_sigma: float, quantized: bool = True) -> float:

@@ -10,7 +10,7 @@ without one, luma keeps the scene's texture and the colour difference is fitted 
 
 Demosaicing and JPEG correlate the noise of neighbouring pixels (on the rendered set the
 correlation along a row is about 0.5 at one pixel and 0.15 at two), which a white-noise covariance
-ignores and a box-sum factor (:func:`scanrig.laser.image.correlated_noise_factor`, which also
+ignores and a box-sum factor (:func:`scanrig.laser.noise.correlated_noise_factor`, which also
 counts the correlation across lines) overstates for a fit along one line (σ 1.7 times too large).
 The fit's covariance uses the noise's autocovariance along the scan line instead
 (:func:`scanrig.laser.fit.parameter_covariance`), measured once per frame on rows (and columns) of
@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import MAD_TO_SIGMA, QUANTIZATION_SIGMA, ColourFrames
+from scanrig.laser.image import ColourFrames
+from scanrig.laser.noise import MAD_TO_SIGMA, QUANTIZATION_SIGMA
 
 #: Largest lag of the noise autocovariance, pixels: an 8-pixel JPEG block.
 MAX_LAG_PX = 8

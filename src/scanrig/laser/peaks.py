@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import BG_CELL, NOISE_CELL, LaserImage, padded_box_sums, pixel_blocks
+from scanrig.laser.image import BG_CELL, LaserImage
+from scanrig.laser.noise import NOISE_CELL
+from scanrig.laser.pixels import padded_box_sums, pixel_blocks
 
 _BLOCK_BITS = 2
 BLOCK = 1 << _BLOCK_BITS  # 4
@@ -261,7 +263,7 @@ def _maxima_in_patches(sig: np.ndarray, flagged: np.ndarray, along: str):
 def _maxima_of_frame(box: np.ndarray, flagged: np.ndarray, along: str):
     """:func:`_maxima_in_patches` from whole-frame OpenCV filters, for frames flagged over a large
     part (texture in a colour frame): the frame's box sums ``box``
-    (:func:`~scanrig.laser.image.padded_box_sums`) compared with their shifted views."""
+    (:func:`~scanrig.laser.pixels.padded_box_sums`) compared with their shifted views."""
     import cv2
 
     h, w = box.shape[0] - 2, box.shape[1] - 2
@@ -387,7 +389,7 @@ def line_prominence(signal: np.ndarray, line: np.ndarray, pos: np.ndarray, reach
     reach : (n,) int array
         Pixels searched on each side, at least 1.
     box_sums : array or callable, optional
-        The box sums of ``signal`` (:func:`~scanrig.laser.image.padded_box_sums`, transposed with
+        The box sums of ``signal`` (:func:`~scanrig.laser.pixels.padded_box_sums`, transposed with
         it) when already computed (the windows are read from them, a third of the gathers), or a
         function returning them, called only when the whole frame's are needed.
 
@@ -425,7 +427,7 @@ def _reach_batches(reach: np.ndarray) -> list[np.ndarray]:
 
 
 def _box_sums_along(signal: np.ndarray) -> np.ndarray:
-    """:func:`~scanrig.laser.image.padded_box_sums` of ``signal`` in its orientation, computed on
+    """:func:`~scanrig.laser.pixels.padded_box_sums` of ``signal`` in its orientation, computed on
     its base array when it is a transposed view (columns scanned)."""
     if signal.strides[1] == signal.itemsize or signal.strides[0] != signal.itemsize:
         return padded_box_sums(signal)

@@ -51,7 +51,7 @@ def detect_spots(
         Known noise σ of the signal, DN; estimated robustly from the frame when omitted.
     saturation_level : float or "auto", optional
         DN at which pixels clip (default: dtype maximum); ``"auto"`` finds each channel's level from
-        the frames (:func:`~scanrig.laser.image.channel_clip_levels`). Clipped pixels are left out of
+        the frames (:func:`~scanrig.laser.clip_level.channel_clip_levels`). Clipped pixels are left out of
         the fit.
     k_detect : float
         Detection threshold: the 3 × 3 box sum above background, in units of its noise.

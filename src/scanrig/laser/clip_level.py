@@ -1,0 +1,76 @@
+"""The level at which each channel of a camera clips, found from its frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: A channel clips below the dtype's maximum at a value ``L`` (see :func:`channel_clip_levels`) that
+#: holds at least ``_PILE_MIN_SHARE`` of the pixels (and ``_PILE_MIN_PIXELS``), ``_PILE_RATIO``
+#: times as many as any of the ``_PILE_BELOW`` values under it (gain can leave every third value
+#: empty, so not only the next one), at most ``_ABOVE_SHARE`` of its count above it, and whose
+#: plateau's neighbouring pixels have a median below ``L`` but at least ``_RIM_FRACTION`` of the
+#: way up from the channel's median to ``L``.
+_PILE_MIN_SHARE = 1e-4
+_PILE_MIN_PIXELS = 16
+_PILE_RATIO = 5.0
+_PILE_BELOW = 4
+_ABOVE_SHARE = 0.01
+_RIM_FRACTION = 0.5
+
+
+def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np.ndarray:
+    """The level, DN, at which each channel of a camera clips, found from its frames.
+
+    Webcams often clip a channel below the dtype's maximum (their processing maps the sensor's
+    full scale to a lower value), and the clipped pixels then pile up at that one value. A value
+    ``L`` of a channel's histogram (frame and dark frame together) is its clip level when
+
+    - it holds many pixels (``_PILE_MIN_SHARE`` of them, at least ``_PILE_MIN_PIXELS``), at least
+      ``_PILE_RATIO`` times as many as each of the ``_PILE_BELOW`` values under it: noise spreads
+      an unclipped flat area over several values, clipping stacks it on one;
+    - few pixels lie above it (``_ABOVE_SHARE`` of its count): it is the top of the channel's range;
+    - the pixels next to the plateau are bright too, but below it (their median is below ``L``
+      and at least ``_RIM_FRACTION`` of the way up from the channel's median to ``L``): the light
+      continues past the clip, so its run is entered from high values, whereas a flat printed or
+      rendered area ends in a step down to the scene, or up to a brighter trace crossing it.
+
+    The highest such value is the level; the dtype's maximum when there is none.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) uint8 or uint16 array
+        The frame, DN.
+    dark : array like ``image``, optional
+        The laser-off frame of the same camera settings.
+
+    Returns
+    -------
+    (C,) float array
+        Clip level of each channel, DN (``C = 1`` for an ``(H, W)`` frame).
+    """
+    import cv2
+
+    full_scale = int(np.iinfo(image.dtype).max)
+    frames = [np.ascontiguousarray(f if f.ndim == 3 else f[:, :, None]) for f in (image, dark) if f is not None]
+    levels = np.full(frames[0].shape[2], float(full_scale))
+    for c in range(levels.size):
+        # OpenCV's histogram of the interleaved frame: several times faster than np.bincount of a plane
+        counts = sum(cv2.calcHist([f], [c], None, [full_scale + 1], [0, full_scale + 1]).ravel() for f in frames)
+        counts = counts.astype(np.int64)
+        above = counts.sum() - np.cumsum(counts)
+        below = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(_PILE_BELOW, counts.dtype), counts[:-1]],
+                                                         _PILE_BELOW).max(axis=1)
+        pile = ((counts >= max(_PILE_MIN_PIXELS, _PILE_MIN_SHARE * counts.sum()))
+                & (counts >= _PILE_RATIO * below) & (above <= _ABOVE_SHARE * counts))
+        pile[full_scale] = False  # the dtype's maximum is the default anyway
+        median = int(np.searchsorted(np.cumsum(counts), 0.5 * counts.sum()))
+        for level in np.flatnonzero(pile)[::-1]:
+            rim = []
+            for f in frames:
+                plateau = (f[:, :, c] == level).view(np.uint8)
+                ring = cv2.dilate(plateau, np.ones((3, 3), np.uint8)) > plateau
+                rim.append(f[:, :, c][ring])
+            if median + _RIM_FRACTION * (level - median) <= np.median(np.concatenate(rim)) < level:
+                levels[c] = float(level)
+                break
+    return levels
