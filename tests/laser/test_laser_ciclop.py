@@ -110,8 +110,9 @@ def test_the_two_stripes_on_the_board_are_straight_to_their_sigma(board_lines):
                    "those rows 0.45 px (rows 500-560 sit 1-1.5 px off). Right laser: this camera's red saturates "
                    "at 180 DN, so its 6-px plateau is not seen as clipped and carries two peaks 2.8 px apart, "
                    "both on the one continuous trace. With saturation_level='auto' (red found clipped at 180) "
-                   "4.5 and 0.68 px: green reads 0 on the plateau (the camera's processing) and red enters it "
-                   "within a pixel, so the clipped fit has no crosstalk and hardly a flank to go on")
+                   "4.3 and 0.42 px: green reads 0 on the plateau (the camera's processing) and red enters it "
+                   "within a pixel, so the plateau is centred on the midpoint of its edges, whose centres "
+                   "scatter 0.46 px (red's edges likely quantised by the Bayer mosaic); the left laser's glint stays")
 def test_every_point_of_the_two_stripes_on_the_board_is_on_its_line(board_lines):
     """Every rank <= 1 centre inside the board, not only those a robust gate keeps, lies on its
     laser's straight line to ``STRAIGHT_RMS_PX``: a glint must be ranked below the stripe, or absent."""

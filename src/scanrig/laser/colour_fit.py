@@ -16,6 +16,11 @@ frame are left out in that channel only; each channel is weighted by its own noi
 light scattered below the surface widens the profile symmetrically: it does not move the centre,
 and where the model leaves a misfit on the flanks the reported σ grows
 (:func:`scanrig.laser.fit.centre_misfit`).
+
+Some webcams leave nothing for that model: their colour matrix holds the other channels flat (at 0)
+under the clipped run and the laser channel jumps from the background to the clip within a pixel.
+A stripe candidate whose run is flat in the other channels and has such steep edges is centred on
+the midpoint of the run's two edges instead (:func:`plateau_midpoint`).
 """
 
 from __future__ import annotations
@@ -32,6 +37,15 @@ PARAMS_2D = ("u0", "v0", "width_u", "width_v", "a_r", "a_g", "a_b", "b_r", "b_g"
 _MAX_OVEREXPOSURE = 100.0
 #: Widths tried for the start, pixels.
 _START_WIDTHS = np.array([0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0])
+#: A channel other than the laser's carries the beam's profile over a clipped run when the sum of
+#: its squared deviations from their mean there, in its noise σ, exceeds the chi-square's mean by
+#: this many of its standard deviations.
+_CROSSTALK_CHI2_SIGMAS = 6.0
+#: An edge of a clipped run is steep when the laser channel crosses its half level within one pixel
+#: by at least this share of the rise from its background to the clip.
+_STEEP_SHARE = 0.5
+#: Variance of a position known only to lie within one pixel (uniform): 1/12 px².
+_QUANTISATION_VAR = 1.0 / 12.0
 
 
 def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndarray, half: int,
@@ -56,6 +70,9 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     dict of (n_ok,) arrays
         ``index`` (into the input), ``centre`` (px along the line), ``var`` (px²), ``peak``
         (laser channel's amplitude, DN), ``width_px``, ``snr`` (peak over the laser channel's noise).
+        A candidate whose run is flat in the other channels and has steep edges takes the
+        centre and variance of :func:`plateau_midpoint`, ``peak`` = its ``rise`` and ``width_px``
+        = its ``half_length``, whether or not the colour fit converged.
     """
     offs = np.arange(-half, half + 1)
     along = pos[:, None] + offs  # (n, W)
@@ -68,10 +85,92 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
                     _normal_1d(x, noise))
     p, var = res.params, cov[:, 0, 0]
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
-    peak = p[:, 2 + colour.laser_channel]
-    out = {"index": np.arange(line.size), "centre": pos + p[:, 0], "var": var, "peak": peak,
-           "width_px": p[:, 1], "snr": peak / noise[colour.laser_channel]}
+    laser = colour.laser_channel
+    centre, width, peak = p[:, 0], p[:, 1], p[:, 2 + laser]
+    raw = _laser_raw(colour, across, along) if rows else _laser_raw(colour, along, across)
+    plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable, laser, axis=2),
+                               np.delete(noise, laser), noise[laser], colour.clip_level[laser])
+    use = plateau["applies"]
+    centre, var = np.where(use, plateau["centre"], centre), np.where(use, plateau["var"], var)
+    width, peak = np.where(use, plateau["half_length"], width), np.where(use, plateau["rise"], peak)
+    ok |= use
+    out = {"index": np.arange(line.size), "centre": pos + centre, "var": var, "peak": peak,
+           "width_px": width, "snr": peak / noise[laser]}
     return {k: a[ok] for k, a in out.items()}
+
+
+def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndarray, others_noise: np.ndarray,
+                     noise: float, clip: float) -> dict[str, np.ndarray]:
+    """Centres of clipped runs from their two edges, where the colour model has nothing to go on.
+
+    The laser channel's background ``B`` is the median of the window's unclipped pixels, and the
+    run is the stretch of pixels around the window's middle at or above the half level
+    ``T = (B + clip) / 2`` (clipped pixels count at ``clip``). Each edge lies where the channel crosses
+    ``T``, linearly interpolated between the run's last pixel and the one beyond; the centre is the
+    midpoint of the two edges. An edge's variance propagates the noise of its unclipped pixel(s)
+    through the interpolation; where the run's pixel is clipped, its true value, and with it where
+    in that pixel step the edge lies, is unknown (a partial pixel beyond it is lit by an unknown share
+    of a beam of unknown peak), and ``1/12 px²`` is added: the edge is known only to that step.
+
+    The midpoint applies where the run carries no crosstalk profile (every other channel is flat
+    over it within its noise, ``_CROSSTALK_CHI2_SIGMAS``) and both edges are steep (the crossing
+    pair of pixels spans ``_STEEP_SHARE`` of ``clip - B``) and inside the window.
+
+    Parameters
+    ----------
+    raw : (n, W) array
+        The laser channel of the frame (not dark-subtracted), DN, along each candidate's line;
+        the run's middle at index ``W // 2``.
+    others, others_usable : (n, W, 2) arrays
+        The other two channels (dark-subtracted where there is a dark frame), DN, and which of their
+        pixels are usable.
+    others_noise : (2,) array
+        Their noise σ, DN.
+    noise, clip : float
+        The laser channel's noise σ and clip level, DN.
+
+    Returns
+    -------
+    dict of (n,) arrays
+        ``centre`` (px from the window's middle), ``var`` (px²), ``half_length`` (half the distance
+        between the edges, px), ``rise`` (``clip - B``, DN: a lower bound of the laser's peak) and
+        ``applies`` (bool).
+    """
+    n, w = raw.shape
+    half = w // 2
+    unclipped = raw < clip
+    v = np.where(unclipped, raw, clip).astype(np.float64)
+    with np.errstate(all="ignore"):  # an all-clipped window has no background: NaN, never applies
+        background = np.nanmedian(np.where(unclipped, v, np.nan), axis=1)
+    level = 0.5 * (background + clip)
+    bright = v >= level[:, None]
+    right = np.cumprod(bright[:, half:], axis=1).sum(axis=1)  # run pixels from the middle on, with it
+    left = np.cumprod(bright[:, half::-1], axis=1).sum(axis=1)
+    applies = (half + right < w) & (half - left >= 0) & np.isfinite(background)
+    pick = np.arange(n)
+    edges, var = [], np.zeros(n)
+    for inner, sign in ((half + right - 1, 1), (half - left + 1, -1)):  # the two edges, not data
+        outer = np.clip(inner + sign, 0, w - 1)
+        inner = np.clip(inner, 0, w - 1)
+        vi, vo = v[pick, inner], v[pick, outer]
+        rise = vi - vo
+        applies &= rise >= _STEEP_SHARE * (clip - background)
+        rise = np.where(rise > 0, rise, 1.0)
+        edges.append(inner - half + sign * (vi - level) / rise)
+        lit_inner = unclipped[pick, inner]
+        var += noise**2 * ((level - vo) ** 2 * lit_inner + (vi - level) ** 2) / rise**4
+        var += np.where(lit_inner, 0.0, _QUANTISATION_VAR)
+    # the other channels over the run: flat within their noise, or a crosstalk profile
+    offs = np.arange(w) - half
+    run = (offs[None, :] < right[:, None]) & (offs[None, :] > -left[:, None])  # (n, W)
+    m = others_usable & run[:, :, None]  # (n, W, 2)
+    count = m.sum(axis=1)  # (n, 2)
+    mean = (others * m).sum(axis=1) / np.maximum(count, 1)
+    chi2 = (((others - mean[:, None, :]) ** 2 * m).sum(axis=1)) / others_noise**2
+    dof = np.maximum(count - 1, 0)
+    applies &= np.all(chi2 <= dof + _CROSSTALK_CHI2_SIGMAS * np.sqrt(2.0 * dof), axis=1)
+    return {"centre": 0.5 * (edges[0] + edges[1]), "var": 0.25 * var, "half_length": 0.5 * (edges[0] - edges[1]),
+            "rise": clip - background, "applies": applies}
 
 
 def fit_clipped_spots(colour: ColourFrames, u: np.ndarray, v: np.ndarray, half: int,
@@ -128,6 +227,13 @@ def _windows(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray):
         usable &= raw_dark < colour.clip_level
         y -= raw_dark
     return y, usable, colour.channel_noise
+
+
+def _laser_raw(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The frame's laser channel (not dark-subtracted) at ``rows, cols (n, M)``, DN; pixels outside
+    the frame repeat its border."""
+    h, w = colour.image.shape[:2]
+    return colour.image[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1), colour.laser_channel]
 
 
 def _bounds(colour: ColourFrames, half: int, n_axes: int):
