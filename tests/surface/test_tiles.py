@@ -47,3 +47,29 @@ def test_chart_groups_give_the_same_fits_side_by_side_or_one_after_the_other(mon
     assert torch.get_num_threads() == 2  # restored after the groups
     np.testing.assert_array_equal(fits[0].z_fit, fits[1].z_fit)
     np.testing.assert_array_equal(fits[0].sigma_upper, fits[1].sigma_upper)
+
+
+def test_one_group_trains_on_one_thread_whatever_the_thread_count(monkeypatch):
+    """A cloud too small for two groups trains on one torch thread too: split among threads, a sum
+    adds in another order, and an early stop turns that last bit into another fit (the demo's
+    filtered points differed between one and two threads)."""
+    rng = np.random.default_rng(6)
+    sizes = [300, 150]
+    uv = [rng.uniform(-1, 1, (n, 2)) for n in sizes]
+    z = [0.3 * p[:, 0] + rng.normal(0, SIGMA, n) for p, n in zip(uv, sizes)]
+    settings = FitSettings(hidden=6, depth=1, epochs=40, robust_epochs=40, update_every=20, start_epochs=10,
+                           n_boot=50)
+    seen = []
+    fit_batches = robust_fit._fit_batches
+
+    def recording(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return fit_batches(*args, **kwargs)
+
+    monkeypatch.setattr(robust_fit, "_fit_batches", recording)
+    fits = []
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        fits.append(fit_charts_by_size(uv, z, settings=settings, rng=np.random.default_rng(0)))
+    assert seen == [1, 1] and torch.get_num_threads() == 2
+    np.testing.assert_array_equal(fits[0].z_fit, fits[1].z_fit)

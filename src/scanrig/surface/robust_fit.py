@@ -561,9 +561,12 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
     the others from generators spawned from it (a smaller cloud is one group: its results, on
     which the protocol's figures were measured, stay those of one stream). With
     torch's intra-op threads at ``FIT_GROUPS`` or more, the groups train at the same time, one
-    thread each (torch's threads set to 1 meanwhile): the networks' operations are too small to
-    keep two threads of one operation busy, and whole groups side by side are not. The
-    arithmetic is the same either way, so the result does not depend on the thread count.
+    thread each: the networks' operations are too small to keep two threads of one operation
+    busy, and whole groups side by side are not. On the CPU every group trains on one torch
+    thread (torch's threads set to 1 meanwhile), a single group too: split among threads, a
+    matrix product or a sum adds in an order that depends on the thread count and the batch's
+    shape, and a network's early stop (``converge_every``) turns such last-bit differences into
+    different fits. So the arithmetic, and the result, do not depend on the thread count.
 
     Parameters
     ----------
@@ -595,16 +598,19 @@ def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: F
                             rng=group_rng, train_mask=None if train_mask is None else [train_mask[c] for c in charts],
                             sigma_floor=floor[charts], device=device, overhead_points=overhead_points)
 
+    if device != "cpu":
+        parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
+        return concatenate_fits(parts, np.argsort(np.concatenate(dealt)))
     threads = torch.get_num_threads()
-    if len(dealt) > 1 and threads >= FIT_GROUPS and device == "cpu":
-        torch.set_num_threads(1)
-        try:
+    torch.set_num_threads(1)
+    try:
+        if len(dealt) > 1 and threads >= FIT_GROUPS:
             with ThreadPoolExecutor(len(dealt)) as pool:
                 parts = list(pool.map(fit_group, dealt, generators))
-        finally:
-            torch.set_num_threads(threads)
-    else:
-        parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
+        else:
+            parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
+    finally:
+        torch.set_num_threads(threads)
     return concatenate_fits(parts, np.argsort(np.concatenate(dealt)))
 
 
