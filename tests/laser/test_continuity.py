@@ -77,15 +77,6 @@ def test_a_candidate_beside_the_stripe_does_not_join_its_chain():
     assert rank_by_continuity(line, centre, prominence)[-1] == 1
 
 
-def test_a_peak_fitted_twice_does_not_cut_the_chain():
-    """Two fits that converged on one peak (the same centre twice on some lines) are one node."""
-    rng = np.random.default_rng(4)
-    line, centre, _ = _stripe(rng, 100.0)
-    twice = np.arange(50, 70)
-    line, centre = np.r_[line, twice], np.r_[centre, centre[twice]]
-    assert np.all(chain_lengths(line, centre) == LINES)
-
-
 def test_long_chains_rank_alike_then_by_prominence():
     """Beyond ``CHAIN_CAP_LINES`` a longer chain is no better: a printed line or a second laser of
     more lines than the stripe does not outrank it."""

@@ -8,8 +8,7 @@ import numpy as np
 
 import scanrig
 from scanrig.io.session import read_image
-from scanrig.laser.continuity import SAME_PEAK_PX
-from scanrig.laser.stripes import distinct_peaks
+from scanrig.laser.stripes import SAME_PEAK_PX, distinct_peaks
 from tests.data_paths import real_data
 
 

@@ -6,9 +6,8 @@ lines. A printed dot's edge or the gap between two dots gives candidates on a fe
 glint is a blob. Each candidate is linked to its nearest candidate on the next line within
 ``MAX_STEP_PX`` per line plus ``JITTER_PX`` (one or two lines without one within reach are
 skipped, ``MAX_GAP_LINES``); where several link to one, only the nearest keeps its link. The links
-make simple chains, so a texture candidate beside a stripe does not join the stripe's chain. Two
-fits that met on one peak of a line (``SAME_PEAK_PX``) count as one. The candidates of a line are ranked
-by the number of lines their chain spans, counted up to ``CHAIN_CAP_LINES``, then by prominence: a
+make simple chains, so a texture candidate beside a stripe does not join the stripe's chain. The
+candidates of a line are ranked by the number of lines their chain spans, counted up to ``CHAIN_CAP_LINES``, then by prominence: a
 long trace outranks a stronger short one, and two long traces (two lasers, a reflection) both
 stay, the more prominent first.
 
@@ -34,8 +33,6 @@ MAX_GAP_LINES = 2
 #: Chains spanning at least this many lines rank alike (then by prominence): a stripe's chain is
 #: cut where its scan direction changes, and a long printed line is no better than a stripe.
 CHAIN_CAP_LINES = 24
-#: Candidates of one line closer than this are two fits that met on one peak, px.
-SAME_PEAK_PX = 0.5
 
 
 def chain_lengths(line: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -74,10 +71,7 @@ def chain_lengths(line: np.ndarray, centre: np.ndarray) -> np.ndarray:
     nearest = np.full(n, np.inf)
     np.minimum.at(nearest, forward[linked], distance[linked])
     linked = linked[distance[linked] == nearest[forward[linked]]]
-    # two fits that met on one peak of a line are one node of the chain
-    same = np.flatnonzero((line[1:] == line[:-1]) & (centre[1:] - centre[:-1] <= SAME_PEAK_PX))
-    graph = coo_matrix((np.ones(linked.size + same.size, np.int8),
-                        (np.r_[linked, same], np.r_[forward[linked], same + 1])), shape=(n, n))
+    graph = coo_matrix((np.ones(linked.size, np.int8), (linked, forward[linked])), shape=(n, n))
     count, label = connected_components(graph, directed=False)
     first, last = np.full(count, line[-1]), np.full(count, line[0])
     np.minimum.at(first, label, line)

@@ -19,7 +19,7 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.colour_fit import fit_clipped
-from scanrig.laser.continuity import SAME_PEAK_PX, rank_by_continuity
+from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
 from scanrig.laser.image import prepare_image
 from scanrig.laser.luma import luma_difference
@@ -30,6 +30,8 @@ from scanrig.laser.traces import empty_table, make_table
 DIRECTIONS = ("auto", "rows", "columns")
 #: A fitted centre further than this from its seed pixel has converged onto another peak.
 MAX_SHIFT_PX = 2.0
+#: Fits on one line whose centres lie closer than this are one peak fitted twice, px.
+SAME_PEAK_PX = 0.5
 
 
 def detect_stripe(
