@@ -13,9 +13,9 @@ from scanrig.errors import InputError
 from scanrig.surface.memory import keep_freed_memory
 from scanrig.surface.network import HeightFieldNets, _Tanh
 from scanrig.surface.hampel import hampel_weight
-from scanrig.surface.robust_fit import (FitSettings, _adam, _Blocks, _bounded_by_heldout, _heldout_prediction,
-                                      _output_layer_irls, _size_batches, _weighted_least_squares, _weighted_solve,
-                                      fit_charts_by_size)
+from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
+                                      _heldout_prediction, _output_layer_irls, _size_batches,
+                                      _weighted_least_squares, _weighted_solve, fit_charts_by_size)
 
 from .conftest import SIGMA, tilted_plane_with_outliers
 
@@ -243,6 +243,30 @@ def test_converged_copies_stop_where_they_were_at_the_check():
     never = HeightFieldNets.concatenate([frozen], torch.arange(rows.n_copies))
     stopped = _weighted_least_squares(never, rows, weight, FitSettings(converge_every=every, converge_tol=-1e9), epochs)
     assert stopped.tolist() == [epochs] * rows.n_copies
+
+
+def test_a_copy_stops_only_after_the_required_checks_in_a_row():
+    # losses per copy at the checks (every 10 epochs): copy 0 flat, falling, flat, flat; copy 1
+    # falling, flat, flat; the others always falling. With two checks in a row, copy 1 stops at
+    # epoch 30 and copy 0, whose first pass was broken, at 40; with one check, both at 10 and 20.
+    nets, rows, *_ = _random_copies(8)
+    falling = [8.0, 4.0, 2.0, 1.0, 0.5]
+    losses = {0: [1.0, 1.0, 0.5, 0.5, 0.5], 1: [1.0, 0.5, 0.5, 0.5, 0.5]}
+    blocks_per_copy = torch.bincount(rows.owner, minlength=rows.n_copies).double()
+    for checks, expected in ((2, {0: 40, 1: 30}), (1, {0: 10, 1: 20})):
+        settings = FitSettings(converge_every=10)
+        active = _Active(nets, rows, _adam(nets, settings, 100), settings, checks=checks)
+        for i in range(5):
+            per_copy = torch.tensor([losses.get(c, falling)[i] for c in range(rows.n_copies)], dtype=torch.float64)
+            left = per_copy[active.copies] / blocks_per_copy[active.copies]  # spread over each copy's blocks
+            active.check(10 * i, left[active.rows.owner])
+        assert {c: int(active.stopped[c]) for c in (0, 1)} == expected
+        assert (active.stopped[2:] == -1).all()
+
+
+def test_negative_convergence_checks_are_rejected():
+    with pytest.raises(InputError, match=r"^converge_every and robust_converge_checks must be >= 0, got 20, -1$"):
+        FitSettings(robust_converge_checks=-1)
 
 
 def test_a_subset_of_copies_is_written_back_alone_and_its_blocks_cut_alike():
