@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.errors import InputError
+from scanrig.laser.clipped_runs import fit_unknown_runs
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
@@ -133,13 +134,14 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
 def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.ndarray] | None:
     """Sub-pixel centres of the candidates of one scan direction (full-frame columns of the traces
     table, ranked by continuity); None when there are none."""
-    if cand.line.size == 0:
+    unknown = fit_unknown_runs(li, along == "rows")  # where the laser channel is unknown
+    if cand.line.size == 0 and unknown is None:
         return None
     rows = along == "rows"
     signal = li.signal if rows else li.signal.T
     saturated = None if li.saturated is None else (li.saturated if rows else li.saturated.T)
     clipped = cand.run_half > 0 if li.colour is not None else np.zeros(cand.line.size, bool)
-    parts = []
+    parts = [] if unknown is None else [unknown]
     if clipped.any():
         wide = cand.take(clipped)
         fit = fit_clipped(li.colour, rows, wide.line, wide.pos,
