@@ -17,6 +17,11 @@ light scattered below the surface widens the profile symmetrically: it does not 
 and where the model leaves a misfit on the flanks the reported σ grows
 (:func:`scanrig.laser.fit.centre_misfit`).
 
+A printed edge under the beam scales both background and profile by the surface's reflectance,
+which that model cannot follow (its background is one level per channel): where its fit fails, or
+leaves a misfit far above the frame's usual, it is refitted multiplied by a reflectance step common
+to the channels (:mod:`scanrig.laser.reflectance`), and the step is kept where an F test supports it.
+
 Some webcams leave nothing for that model: their colour matrix holds the other channels flat (at 0)
 under the clipped run and the laser channel jumps from the background to the clip within a pixel.
 A stripe candidate whose run is flat in the other channels and has such steep edges is centred on
@@ -29,6 +34,8 @@ import numpy as np
 
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _gram, _profile, centre_misfit, fit_batch
 from scanrig.laser.image import ColourFrames
+from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
+from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step
 
 #: Parameter order of the colour models: the profile's (centre, then widths), then per channel.
 PARAMS_1D = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
@@ -44,6 +51,15 @@ _CROSSTALK_CHI2_SIGMAS = 6.0
 #: An edge of a clipped run is steep when the laser channel crosses its half level within one pixel
 #: by at least this share of the rise from its background to the clip.
 _STEEP_SHARE = 0.5
+#: Windows whose colour fit leaves a χ²/dof this many times the median of the frame's are refitted
+#: with a reflectance step (on the rendered colour set the median is 16 and the 99th percentile on
+#: the beam 1.7 times that; a printed edge under the beam gives 2-25 times).
+_STEP_TRIGGER = 2.0
+#: Most iterations of the step model's fit: on the rendered colour set 8 placed as many centres
+#: within 0.5 px as 12 or 20 (the windows that keep iterating crawl along the clipped amplitude).
+_STEP_ITERATIONS = 8
+#: The step model starts from the best of the start widths up to this, px (the beam's, not a band's).
+_BEAM_START_MAX_PX = 2.0
 #: Variance of a position known only to lie within one pixel (uniform): 1/12 px².
 _QUANTISATION_VAR = 1.0 / 12.0
 
@@ -81,12 +97,18 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     trial = np.exp(-0.5 * (offs[None, :] / _START_WIDTHS[:, None]) ** 2)  # (k, W)
     lower, upper = _bounds(colour, half, 1)
     x = offs.astype(float)
-    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_1d(x, noise), trial, lower, upper,
-                    _normal_1d(x, noise))
-    p, var = res.params, cov[:, 0, 0]
-    ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
     laser = colour.laser_channel
-    centre, width, peak = p[:, 0], p[:, 1], p[:, 2 + laser]
+    p0 = _plain_start(y, usable, noise, laser, trial, 1)
+    res, cov = _fit(y, usable, noise, _model_1d(x, noise), p0, lower, upper, 1, _normal_1d(x, noise))
+    p, var = res.params, cov[:, 0, 0]
+    max_shift_px = np.broadcast_to(max_shift_px, var.shape)
+    ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
+    centre, var, width, peak = p[:, 0].copy(), var.copy(), p[:, 1].copy(), p[:, 2 + laser].copy()
+    step = _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser)
+    if step is not None:
+        use, step_centre, step_var, step_width, step_peak = step
+        centre[use], var[use], width[use], peak[use] = step_centre, step_var, step_width, step_peak
+        ok[use] = True
     raw = _laser_raw(colour, across, along) if rows else _laser_raw(colour, along, across)
     plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable, laser, axis=2),
                                np.delete(noise, laser), noise[laser], colour.clip_level[laser])
@@ -97,6 +119,42 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     out = {"index": np.arange(line.size), "centre": pos + centre, "var": var, "peak": peak,
            "width_px": width, "snr": peak / noise[laser]}
     return {k: a[ok] for k, a in out.items()}
+
+
+def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser):
+    """The colour model times a reflectance step (:mod:`scanrig.laser.reflectance`), fitted where the
+    plain fit failed or its χ²/dof is ``_STEP_TRIGGER`` times the median of the frame's converged
+    fits, and kept where the F test supports it and its centre stays within ``max_shift_px``.
+
+    ``y, usable (n, W, 3)`` the windows, ``x (W,)`` their pixels, ``res`` the plain fit, ``ok (n,)``
+    where it converged on the seed. The step starts from a beam-wide profile at the window's middle
+    (the plain fit, pulled to the bright side or widened over a band of paper between two dots, is a
+    worse start) and the split of the window that best separates the data's ratio to it
+    (:func:`~scanrig.laser.reflectance.step_start`). Returns None where no window is refitted, else
+    the indices of the windows that take the step model, and their centre, variance, width and laser
+    peak (the amplitude times the reflectance at the centre).
+    """
+    chi2_dof = res.chi2_unit / np.maximum(res.dof, 1)
+    usual = np.median(chi2_dof[ok]) if ok.any() else 0.0
+    suspect = np.flatnonzero((~ok | (chi2_dof > _STEP_TRIGGER * usual)) & (res.dof > len(STEP_PARAMS)))
+    if suspect.size == 0:
+        return None
+    ys, us = y[suspect], usable[suspect]
+    model = _model_1d(x, noise)
+    beam = _START_WIDTHS[_START_WIDTHS <= _BEAM_START_MAX_PX]
+    plain = _plain_start(ys, us, noise, laser, np.exp(-0.5 * (x[None, :] / beam[:, None]) ** 2), 1)
+    mu = model(plain.T)[0]  # whitened, (3 W, k)
+    start = step_start(ys, (mu.reshape(3, x.size, -1) * noise[:, None, None]).transpose(2, 1, 0), us, noise, x)
+    p0 = np.concatenate([plain, start[:, 1:]], axis=1)
+    p0[:, 2:8] *= np.exp(start[:, :1])  # the plain model's levels are the left side's
+    step_lower, step_upper = step_bounds(x.size // 2)
+    fit, cov = _fit(ys, us, noise, with_step(model, x, 3), p0, np.r_[lower, step_lower], np.r_[upper, step_upper], 1,
+                    n_iter=_STEP_ITERATIONS)
+    q, var = fit.params, cov[:, 0, 0]
+    keep = (np.isfinite(var) & (np.abs(q[:, 0]) <= max_shift_px[suspect])
+            & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof))
+    q, var = q[keep], var[keep]
+    return suspect[keep], q[:, 0], var, q[:, 1], q[:, 2 + laser] * reflectance_at(q[:, 0], q[:, 8:])
 
 
 def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndarray, others_noise: np.ndarray,
@@ -203,7 +261,8 @@ def fit_clipped_spots(colour: ColourFrames, u: np.ndarray, v: np.ndarray, half: 
     trial = np.exp(-0.5 * r2.ravel()[None, :] / _START_WIDTHS[:, None] ** 2)  # (k, W·W)
     lower, upper = _bounds(colour, half, 2)
     x = offs.astype(float)
-    res, cov = _fit(y, usable, noise, colour.laser_channel, _model_2d(x, x, noise), trial, lower, upper)
+    p0 = _plain_start(y, usable, noise, colour.laser_channel, trial, 2)
+    res, cov = _fit(y, usable, noise, _model_2d(x, x, noise), p0, lower, upper, 2)
     p, cov = res.params, cov[:, :2, :2]
     ok = (np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.abs(p[:, :2]) <= max_shift_px, axis=1)
           & (res.dof > 0))
@@ -248,19 +307,25 @@ def _bounds(colour: ColourFrames, half: int, n_axes: int):
     return lower, upper
 
 
-def _fit(y, usable, noise, laser, model, trial, lower, upper, normal=None):
-    """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` (``normal``: the model's normal
-    equations, see :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance
-    ``(n, P, P)`` of the parameters, inflated where the model leaves a misfit that pulls the centre
-    (:func:`~scanrig.laser.fit.centre_misfit`)."""
+def _plain_start(y, usable, noise, laser, trial, n_axes):
+    """Start values ``(n, 2 n_axes + 6)`` of the colour model: the centre at the window's middle,
+    then :func:`_start`'s width (for every axis), amplitudes and backgrounds."""
+    start = _start(y, usable, trial, noise, laser)
+    return np.concatenate([np.zeros((y.shape[0], n_axes)), np.repeat(start[:, :1], n_axes, axis=1), start[:, 1:]],
+                          axis=1)
+
+
+def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=12):
+    """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` from ``p0 (n, P)`` (``normal``:
+    the model's normal equations, ``n_iter`` the most iterations, see
+    :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance ``(n, P, P)`` of the
+    parameters, inflated where the model leaves a misfit that pulls the centre (its first ``n_axes``
+    parameters, :func:`~scanrig.laser.fit.centre_misfit`)."""
     n, m = y.shape[:2]
-    n_axes = (lower.size - 6) // 2
     # candidate-minor stacks, channel-major pixels: (3 M, n)
     y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
     mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
-    start = _start(y, usable, trial, noise, laser)
-    p0 = np.concatenate([np.zeros((n, n_axes)), np.repeat(start[:, :1], n_axes, axis=1), start[:, 1:]], axis=1)
-    res = fit_batch(model, y_minor, mask, p0, lower, upper, minor=True, normal=normal)
+    res = fit_batch(model, y_minor, mask, p0, lower, upper, n_iter, minor=True, normal=normal)
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
     if good.any():  # whitened pixels: unit variance where fitted
