@@ -33,7 +33,12 @@ from scanrig.laser.pixels import cell_lookup
 #: Largest share of the laser channel's rise that the other channels (their mean) take up while
 #: the laser channel still measures the light; above it the laser channel is unknown.
 MAX_CROSSTALK_SHARE = 0.5
-#: The other channels' mean rise must exceed this many of the noise σ there.
+#: The other channels' mean rise must exceed this share of the laser channel's clip level: a
+#: camera whitens a pixel saturated in its sensor, so they rise by a good part of full scale (100-130
+#: DN of a 180-255 DN clip on the Ciclop webcam), while light that changes between the two
+#: exposures moves every channel alike by a few DN...
+MIN_RISE_SHARE = 0.2
+#: ... and this many of the laser signal's noise σ there.
 RISE_SIGMAS = 6.0
 #: Distance between two photosites of one colour of a Bayer mosaic along a row or column, px.
 BAYER_PERIOD_PX = 2.0
@@ -151,42 +156,67 @@ def _unknown_of(li) -> UnknownPixels:
 
 def unknown_laser(li) -> UnknownPixels:
     """Pixels where the laser channel is unknown and the other channels' mean rise (laser-on minus
-    laser-off, both usable in both frames) exceeds ``RISE_SIGMAS`` of the laser signal's noise σ,
-    the frame's and its cell's (:attr:`scanrig.laser.image.LaserImage.noise_sigma`, ``noise``),
-    and of the other channels' own (:attr:`scanrig.laser.image.ColourFrames.channel_noise`, which holds what they share: the
-    ambient light's change between the two exposures).
+    laser-off, both usable in both frames) exceeds ``MIN_RISE_SHARE`` of the laser channel's clip
+    level and ``RISE_SIGMAS`` of the laser signal's noise σ in its cell
+    (:attr:`scanrig.laser.image.LaserImage.noise`).
 
-    The frame is searched with the planes the detector has built: where the laser channel is not
-    clipped, the other channels' mean rise is the laser channel's (``colour.laser_plane``) less the
-    colour difference (``signal``); pixels clipped in the frame (``saturated``) are taken too. The
-    few found are then checked on the raw frames.
+    The whitened pixels are searched on the whole frame with the planes the detector has built:
+    where the laser channel is not clipped, the other channels' mean rise is the laser channel's
+    (``colour.laser_plane``) less the colour difference (``signal``). Only where some are found,
+    the pixels clipped in the frame (``saturated``) near them are added (a run of a saturated beam
+    may hold both). The few found are checked on the raw frames.
 
     Parameters
     ----------
     li : LaserImage
         A colour frame with a laser-off frame (``li.colour.dark`` set).
     """
+    import cv2
+
+    colour = li.colour
+    floor = MIN_RISE_SHARE * float(colour.clip_level[colour.laser_channel])
+    rise = cv2.subtract(colour.laser_plane, li.signal)  # float32 planes; OpenCV's pass is the faster
+    v, u = np.divmod(np.flatnonzero(rise > floor), rise.shape[1])  # a flat search: few pixels, fast
+    whitened = _checked(li, v, u, floor)
+    v, u = v[whitened.keep], u[whitened.keep]
+    if v.size == 0 or li.saturated is None:
+        return UnknownPixels(v, u, whitened.rise, whitened.whitened)
+    reach = MAX_RUN_PX
+    box = (slice(max(v.min() - reach, 0), v.max() + reach + 1), slice(max(u.min() - reach, 0), u.max() + reach + 1))
+    sv, su = np.nonzero(li.saturated[box])
+    sv, su = sv + box[0].start, su + box[1].start
+    clipped = _checked(li, sv, su, floor)
+    sv, su = sv[clipped.keep], su[clipped.keep]
+    both_v, both_u = np.r_[v, sv], np.r_[u, su]
+    order = np.lexsort((both_u, both_v))
+    first = np.r_[True, (np.diff(both_v[order]) != 0) | (np.diff(both_u[order]) != 0)]  # a pixel once
+    order = order[first]
+    return UnknownPixels(both_v[order], both_u[order], np.r_[whitened.rise, clipped.rise][order],
+                         np.r_[whitened.whitened, clipped.whitened][order])
+
+
+class _Checked(NamedTuple):
+    keep: np.ndarray
+    rise: np.ndarray
+    whitened: np.ndarray
+
+
+def _checked(li, v: np.ndarray, u: np.ndarray, floor: float) -> _Checked:
+    """Which of the pixels ``v, u`` have the laser channel unknown (clipped in either frame, or
+    whitened) and the other channels usable and risen above ``floor`` and ``RISE_SIGMAS`` of the
+    noise; their rise (DN) and whether whitened (not clipped)."""
     colour = li.colour
     k = colour.laser_channel
     others = [c for c in range(3) if c != k]
-    laser = colour.laser_plane
-    floor = RISE_SIGMAS * li.noise_sigma
-    # the other channels rise by more than the floor and by more than MAX_CROSSTALK_SHARE of the laser's
-    cap = np.minimum(np.multiply(laser, 1.0 - MAX_CROSSTALK_SHARE, dtype=np.float32), laser - np.float32(floor))
-    found = li.signal < cap
-    if li.saturated is not None:
-        found |= li.saturated
-    v, u = np.nonzero(found)
     px_on, px_off = colour.image[v, u].astype(np.float64), colour.dark[v, u]
-    lit = (px_on[:, others] - px_off[:, others]).mean(axis=1)
+    rise = (px_on[:, others] - px_off[:, others]).mean(axis=1)
     clip = colour.clip_level
     usable = np.all((px_on[:, others] < clip[others]) & (px_off[:, others] < clip[others]), axis=1)
     clipped = (px_on[:, k] >= clip[k]) | (px_off[:, k] >= clip[k])
-    whitened = ~clipped & (lit > MAX_CROSSTALK_SHARE * (px_on[:, k] - px_off[:, k]))
-    keep = np.flatnonzero(usable & (clipped | whitened) & (lit > RISE_SIGMAS * cell_lookup(li.noise, NOISE_CELL, u, v)))
-    if keep.size:  # the colour difference's noise leaves out what all channels share: their own σ too
-        keep = keep[lit[keep] > RISE_SIGMAS * 0.5 * float(np.hypot(*colour.channel_noise[others]))]
-    return UnknownPixels(v[keep], u[keep], lit[keep], whitened[keep])
+    whitened = ~clipped & (rise > MAX_CROSSTALK_SHARE * (px_on[:, k] - px_off[:, k]))
+    keep = (usable & (clipped | whitened) & (rise > floor)
+            & (rise > RISE_SIGMAS * cell_lookup(li.noise, NOISE_CELL, u, v)))
+    return _Checked(keep, rise[keep], whitened[keep])
 
 
 def unknown_runs(pixels: UnknownPixels, rows: bool) -> Runs:
