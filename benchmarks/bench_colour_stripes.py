@@ -12,7 +12,10 @@ alone (``max_per_line=0``: nothing is fitted).
 
 Real frames (``tests/data/ciclop-laser-stripes``, CC BY-SA 4.0): a Ciclop scanner's webcam, a red
 line laser on a white bust; rank 0 is counted on the stripe when within 6 px of the row's
-strongest red difference (laser on − off), on the rows where that difference exceeds 60 DN.
+strongest red difference (laser on − off), on the rows where that difference exceeds 60 DN. Then
+the chessboard's ``-x`` pair: two lasers on a flat board, so each laser's rank <= 1 points inside
+the board, undistorted with the data set's intrinsics, lie on a straight line
+(``tests/laser/ciclop_board.py``).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.data_paths import real_data  # noqa: E402
+from tests.laser import ciclop_board as board  # noqa: E402
 from tests.laser.colour_synth import stripe_frames  # noqa: E402
 
 from scanrig.io.session import read_image  # noqa: E402
@@ -154,6 +158,28 @@ def ciclop() -> None:
         base = np.mean(np.abs(cog_rows(on, dark)[rows] - reference) < 6.0)
         print(f"  laser-off frame {'yes' if use_dark else 'no ':3}: rank 0 on the stripe {share:.4f}, "
               f"COG7 {base:.4f}; {len(t)} candidates, {ms:.0f} ms CPU")
+    ciclop_board()
+
+
+def ciclop_board() -> None:
+    on, off = board.frames()
+    outline = board.board_outline()
+    print("\nReal Ciclop board (the -x pair, two lasers, a glint beside the left one), rank <= 1 points inside "
+          "the board, undistorted: RMS from each laser's straight line")
+    print(f"  {'saturation_level':18}{'laser':>7}{'n':>5}{'RMS':>7}{'<1px n':>8}{'RMS':>7}{'sigma':>7}"
+          f"{'glint rows <1.5px':>19}{'offset':>8}")
+    for level in (None, "auto"):
+        lines = board.board_lines(detect_stripe(on, color="red", dark=off, saturation_level=level), outline)
+        for name, (p, sigma, row) in zip(("left", "right"), lines):
+            residual = board.line_residuals(p)
+            near = np.abs(residual) < 1.0
+            glint = (row >= board.GLINT_ROWS[0]) & (row <= board.GLINT_ROWS[1])
+            off_glint = board.line_residuals(p, ~glint)[glint]
+            print(f"  {level!s:18}{name:>7}{len(p):5d}{np.sqrt(np.mean(residual**2)):7.3f}{near.sum():8d}"
+                  f"{np.sqrt(np.mean(board.line_residuals(p[near]) ** 2)):7.3f}{np.sqrt(np.mean(sigma[near] ** 2)):7.3f}"
+                  f"{np.mean(np.abs(off_glint) < 1.5):19.2f}{np.median(off_glint):+8.2f}")
+    print("  <1px: the points within 1 px of the line, their RMS about their own line and their reported sigma (RMS);")
+    print("  glint rows (569-638): share within 1.5 px of the line through the other rows, and their median offset")
 
 
 def main() -> None:
