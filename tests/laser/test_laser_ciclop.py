@@ -101,7 +101,7 @@ def test_on_the_glints_rows_the_left_laser_is_on_its_line(board_lines):
     assert np.mean(np.abs(residual[glint]) < ON_LINE_PX) >= ON_LINE_SHARE
 
 
-@pytest.mark.xfail(strict=True, reason="RMS 0.67 and 0.41 px. The floor is centre noise: the right laser's points "
+@pytest.mark.xfail(strict=True, reason="RMS 0.59 and 0.41 px. The floor is centre noise: the right laser's points "
                    "within 1 px of its line scatter 0.35 px about it, their reported sigma 0.41 px RMS (residual / "
                    "sigma 1.04 RMS); the residual is correlated along the line as the frame's noise is across rows "
                    "(0.88, 0.77, 0.67 at 1-3 rows; the colour difference's noise 0.96, 0.88, 0.77), and a cubic "
