@@ -255,13 +255,17 @@ def prepare_image(
         # A white core reads as the brightest part of the trace; after dark subtraction, as what
         # the laser added at least: a glint just below the clip level that noise pushes over it
         # in one frame is not a spot at full scale.
-        signal[saturated] = (saturation_level if dark is None
-                             else saturation_level - np.maximum(dark_signal[saturated], 0.0))
+        # (flat indices of the few clipped pixels: a boolean mask would be scanned whole each time)
+        at = np.flatnonzero(saturated)
+        np.put(signal, at, saturation_level if dark is None
+               else saturation_level - np.maximum(np.take(dark_signal, at), 0.0))
         if dark is not None:
-            dark_clipped = _clipped(dark, color, clip_levels)
+            # clipped in the dark frame too (asked only where the frame is clipped)
+            dark_clipped = _clipped(dark[np.divmod(at, saturated.shape[1])][None], color, clip_levels)
             if dark_clipped is not None:
-                dark_saturated = saturated & dark_clipped
-                signal[dark_saturated] = 0.0  # until the other channels say otherwise (below)
+                dark_saturated = np.zeros_like(saturated)
+                np.put(dark_saturated, at[dark_clipped[0]], True)
+                np.put(signal, at[dark_clipped[0]], 0.0)  # until the other channels say otherwise (below)
     colour = None
     if image.ndim == 3 and color != "grey":
         colour = ColourFrames(image, dark, _CHANNEL[color], clip_levels)
