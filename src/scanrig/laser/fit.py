@@ -38,6 +38,13 @@ MIN_WIDTH_PX = 0.3
 MIN_PEAK_DN = 1e-6
 #: Levenberg–Marquardt damping: start, decrease on success, increase on failure.
 _LAMBDA0, _LAMBDA_DOWN, _LAMBDA_UP = 1e-3, 0.3, 10.0
+#: Statistical stop rule of :func:`fit_batch`: a fit stops when what is left to gain is at most this,
+#: in χ² units (it leaves every parameter within √STOP_CHI2 = 0.1 of its σ of the minimum).
+STOP_CHI2 = 1e-2
+#: With it, the step is scaled by the inverse of the curvature ratio measured along the last step,
+#: within these limits (a secant correction of Gauss–Newton's step length where large residuals
+#: make it overshoot or fall short).
+_STEP_SCALES = (0.25, 2.0)
 
 #: Parameter order of the 1-D model.
 PARAMS_1D = ("peak", "x0", "width", "background")
@@ -223,12 +230,13 @@ class FitResult:
 
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
               upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False,
-              normal=None) -> FitResult:
+              normal=None, noise_var: np.ndarray | None = None, stop_chi2: float = STOP_CHI2) -> FitResult:
     """Levenberg–Marquardt least squares for a stack of independent windows.
 
-    Each candidate iterates until an accepted step lowers its cost by less than ``tol`` (relative)
-    or ``n_iter`` is reached; converged candidates leave the working set, so the usual 3–5
-    iterations cost what they cost and a few hard ones do not slow down the rest.
+    A candidate stops when an accepted step lowers its cost by less than ``tol`` (relative), or,
+    given its ``noise_var``, as soon as what is left to gain is below ``stop_chi2`` in χ² (see the
+    notes), or after ``n_iter`` steps; stopped candidates leave the working set, so the usual 2–3
+    steps cost what they cost and a few hard ones do not slow down the rest.
 
     Parameters
     ----------
@@ -243,7 +251,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     p0 : (n, P) float array
         Start values.
     lower, upper : (P,) float arrays
-        Box bounds; steps are clipped to them.
+        Box bounds: a parameter on its bound that the cost pushes outwards is held there while the
+        others take the step of the reduced system, and steps are clipped to the bounds.
     n_iter : int
         Most iterations.
     tol : float
@@ -255,6 +264,12 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         (lower triangle), Jᵀr (P, k))``, the weighted cost and normal equations of ``model``, for a
         model whose structure gives them more cheaply than its dense Jacobian (``w`` the mask as 0/1
         floats, None where every pixel is fitted). ``model`` is then evaluated only at the solution.
+    noise_var : (n,) float array, optional
+        Noise variance σ² of each candidate's pixels, units of ``y²``; switches on the statistical
+        stop rule and the step-length correction (see the notes).
+    stop_chi2 : float
+        With ``noise_var``: a candidate stops when what is left to gain is at most
+        ``stop_chi2 · σ²``.
 
     Returns
     -------
@@ -262,10 +277,24 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
 
     Notes
     -----
+    Along a step ``δ`` the cost is ``c(p + tδ) ≈ c(p) − t g + t² κ h`` with ``g = 2 Jᵀr · δ`` and
+    ``h = δᵀ JᵀJ δ``: ``κ = 1`` for Gauss–Newton; where large residuals make the true curvature
+    differ from ``JᵀJ``'s, ``κ`` is measured along the last step from its actual decrease ``Δc``,
+    ``κ = (g − Δc) / h``. The most the line can still gain is ``g² / (4 κ h)``, and a candidate
+    stops when that is at most ``stop_chi2 · σ²``, at low damping (where the step is
+    Gauss–Newton's and points at the minimum). What is left to gain there is ``δ*ᵀ JᵀJ δ*``, ``δ*``
+    the distance to the minimum, and ``δ*_k² ≤ (δ*ᵀ JᵀJ δ*) (JᵀJ)⁻¹_kk`` for every parameter ``k``:
+    the stop leaves each parameter within ``√stop_chi2`` of its own standard deviation
+    ``σ √((JᵀJ)⁻¹_kk)`` of the minimum. It is decided before the step is taken: no evaluation is
+    spent on confirming convergence. The step is scaled by ``1 / κ`` (within ``_STEP_SCALES``), a
+    secant correction of its length that turns the slow zig-zag of Gauss–Newton on large residuals
+    into a few steps.
+
     Between iterations a candidate carries only its parameters, cost, damping and normal equations
     ``JᵀJ``, ``Jᵀr`` (``P² + P`` numbers), not its Jacobian and residuals: the working set is
     compacted as candidates leave it without copying ``(P, M, n)`` arrays, and the Jacobian and
-    residuals of the result are evaluated once, at the solution.
+    residuals of the result are evaluated once, at the solution (moving them out of the working set
+    costs about as much); ``(JᵀJ)⁻¹`` is that of the carried normal equations.
     """
     if not minor:
         user_model = model
@@ -279,44 +308,101 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     upper = np.asarray(upper, float)[:, None]
     w = None if mask.all() else mask.astype(np.float64)  # None: every pixel is fitted
     n_par = p0.shape[1]
-    p = np.array(np.asarray(p0).T, dtype=float, order="C")  # (P, n)
-    np.maximum(p, lower, out=p)  # (np.clip's Python wrapper costs more)
-    np.minimum(p, upper, out=p)
-    # the working set: candidates still iterating, their data and state (views until one leaves)
-    idx = np.arange(p.shape[1])
-    ya, wa, pa = y, w, p
+    dof = mask.sum(axis=0) - n_par
+    p = _clip(np.array(np.asarray(p0).T, dtype=float, order="C"), lower, upper)  # (P, n)
+    n = p.shape[1]
     evaluate = normal or functools.partial(_evaluate, model, normal=True)
+    # the working set: candidates still iterating, their data and state (views until one leaves)
+    idx = np.arange(n)
+    ya, wa, pa = y, w, p
     cost, hess, grad = evaluate(pa, ya, wa)
-    lam = np.full(idx.size, _LAMBDA0)
-    for _ in range(n_iter):
+    statistical = noise_var is not None
+    if statistical:
+        stop = stop_chi2 * np.asarray(noise_var, float) * np.ones(n)
+        curvature = np.ones(n)  # along the last step, over Gauss–Newton's (1 until a step measures it)
+    lam = np.full(n, _LAMBDA0)
+    converged = np.zeros(n, bool)
+    stopped = []  # per group of candidates that left together: [candidates, p, cost, JᵀJ]
+    for step_count in range(n_iter + 1):
+        # a parameter on its bound that the cost pushes outwards is held there (projected step)
+        held = ((pa <= lower) & (grad <= 0.0)) | ((pa >= upper) & (grad >= 0.0))
+        step = _damped_solve(*_held(hess, grad, held), lam) if held.any() else _damped_solve(hess, grad, lam)
+        leave = converged | (lam >= 1e10)
+        if statistical:  # 1 / curvature within _STEP_SCALES (the longest where it is not positive)
+            step *= np.maximum(1.0 / np.maximum(curvature, 1.0 / _STEP_SCALES[1]), _STEP_SCALES[0])
+        p_try = _clip(pa + step, lower, upper)
+        if statistical:
+            # what is left to gain along the step, lin² / (4 curvature quad), with the curvature
+            # measured along the last one (see the notes); only at low damping, where the step is
+            # Gauss–Newton's
+            lin, quad = _step_terms(hess, grad, p_try - pa)
+            leave |= (lam <= _LAMBDA0) & (lin * lin <= 4.0 * stop * curvature * quad)
+        if step_count == n_iter:
+            leave[:] = True
+        if leave.any():
+            out = np.flatnonzero(leave)
+            stopped.append([a[..., out] for a in (idx, pa, cost, hess)])
+            keep = np.flatnonzero(~leave)
+            idx, ya, pa, p_try, cost, hess, grad, lam = (
+                np.take(a, keep, axis=-1) for a in (idx, ya, pa, p_try, cost, hess, grad, lam))
+            wa = None if wa is None else np.take(wa, keep, axis=-1)
+            if statistical:
+                stop, lin, quad = (np.take(a, keep) for a in (stop, lin, quad))
         if idx.size == 0:
             break
-        p_try = _damped_solve(hess, grad, lam)
-        p_try += pa
-        np.maximum(p_try, lower, out=p_try)
-        np.minimum(p_try, upper, out=p_try)
         cost_try, hess_try, grad_try = evaluate(p_try, ya, wa)
-        better = cost_try < cost
-        converged = better & (cost - cost_try <= tol * cost)
-        lam = np.where(better, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
-        if better.all():
+        accepted = cost_try < cost
+        converged = accepted & (cost - cost_try <= tol * cost)
+        if statistical:  # a zero step measures nothing: 1
+            curvature = np.divide(lin - (cost - cost_try), quad, out=np.ones_like(quad), where=quad > 0.0)
+        lam = np.where(accepted, lam * _LAMBDA_DOWN, lam * _LAMBDA_UP)
+        if accepted.all():
             pa, cost, hess, grad = p_try, cost_try, hess_try, grad_try
         else:  # the rejected keep their state: one masked pass per array, no boolean gathers
             for kept, tried in ((pa, p_try), (cost, cost_try), (hess, hess_try), (grad, grad_try)):
-                np.copyto(kept, tried, where=better)
-        stay = ~converged & (lam < 1e10)
-        if not stay.all():
-            p[:, idx] = pa
-            keep = np.flatnonzero(stay)
-            idx, ya, pa, cost, hess, grad, lam = (np.take(a, keep, axis=-1)
-                                                  for a in (idx, ya, pa, cost, hess, grad, lam))
-            wa = None if wa is None else np.take(wa, keep, axis=-1)
-    p[:, idx] = pa
+                np.copyto(kept, tried, where=accepted)
+    p, cost, hess = _in_order(stopped, n)
     r, jac = _evaluate(model, p, y, w)
-    cost = np.einsum("mn,mn->n", r, r)
-    info_inv = _spd_inverse(jac)
-    dof = mask.sum(axis=0) - n_par
-    return FitResult(p.T, info_inv, cost, dof, jac.transpose(2, 1, 0), r.T)
+    return FitResult(p.T, _spd_inverse(hess), cost, dof, jac.transpose(2, 1, 0), r.T)
+
+
+def _in_order(groups: list, n: int) -> list[np.ndarray]:
+    """Arrays of all ``n`` candidates, in order, from ``groups`` ``[candidates (k,), a (..., k),
+    b (..., k) ...]`` that hold each candidate once (the last axis of each array is the candidate's)."""
+    if len(groups) == 1:  # all at once: in order already (the working set's order is ascending)
+        return groups[0][1:]
+    columns = np.concatenate([g[0] for g in groups])
+    stacked = [np.concatenate(parts, axis=-1) for parts in zip(*(g[1:] for g in groups))]
+    order = np.argsort(columns)
+    return [a[..., order] for a in stacked]  # (faster than np.take for a permutation)
+
+
+def _held(hess: np.ndarray, grad: np.ndarray, held: np.ndarray):
+    """Normal equations ``hess (P, P, k)``, ``grad (P, k)`` with the parameters ``held (P, k)``
+    fixed: their rows and columns cleared but for the diagonal and their gradient zero, so that
+    their step is zero and the others' is that of the reduced system; new arrays."""
+    n_par = hess.shape[0]
+    free = ~held
+    h = np.where(free[:, None] & free[None, :], hess, 0.0)
+    h.reshape(n_par * n_par, -1)[:: n_par + 1] = hess.reshape(n_par * n_par, -1)[:: n_par + 1]
+    return h, grad * free
+
+
+def _step_terms(hess: np.ndarray, grad: np.ndarray, step: np.ndarray):
+    """``2 Jᵀr · δ`` and ``δᵀ JᵀJ δ`` ``(k,)`` of the steps ``δ (P, k)`` for the normal equations
+    ``hess (P, P, k)`` (lower triangle read) and ``grad (P, k)``: the Gauss–Newton model lowers the
+    cost by their difference."""
+    n_par = step.shape[0]
+    quad = np.einsum("in,in->n", hess.reshape(n_par * n_par, -1)[:: n_par + 1] * step, step)
+    for i in range(1, n_par):
+        quad += 2.0 * np.einsum("jn,jn->n", hess[i, :i], step[:i]) * step[i]
+    return 2.0 * np.einsum("in,in->n", grad, step), quad
+
+
+def _clip(p: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``p`` clipped to the bounds, in place (np.clip's Python wrapper costs more)."""
+    np.maximum(p, lower, out=p)
+    return np.minimum(p, upper, out=p)
 
 
 def _evaluate(model, p: np.ndarray, y: np.ndarray, w: np.ndarray | None, normal: bool = False):
@@ -412,20 +498,20 @@ def _cholesky_solve(h: np.ndarray, b: np.ndarray, diag: np.ndarray | None = None
     return x
 
 
-def _spd_inverse(jac: np.ndarray) -> np.ndarray:
-    """Inverses ``(n, P, P)`` of the information matrices ``JᵀJ`` of the candidate-minor
-    ``jac (P, M, n)``; NaN where (near-)singular: where the determinant of the correlation matrix,
-    ``det / ∏ diagonal``, is at most 1e-12."""
-    size, _, n = jac.shape
+def _spd_inverse(h: np.ndarray) -> np.ndarray:
+    """Inverses ``(n, P, P)`` of the information matrices ``JᵀJ`` ``h (P, P, n)`` (lower triangle
+    read, as :func:`_gram` makes them); NaN where (near-)singular: where the determinant of the
+    correlation matrix, ``det / ∏ diagonal``, is at most 1e-12."""
+    size, _, n = h.shape
     if n < _UNROLLED_MIN:
-        h = jac.transpose(2, 0, 1) @ jac.transpose(2, 1, 0)  # (n, P, P)
+        low = np.tril(h.transpose(2, 0, 1))
+        h = low + np.tril(low, -1).transpose(0, 2, 1)  # (n, P, P)
         out = np.full_like(h, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
             ok = np.linalg.det(h) / np.prod(h.reshape(n, -1)[:, :: size + 1], axis=1) > 1e-12
         if ok.any():
             out[ok] = np.linalg.inv(h[ok])
         return out
-    h = _gram(jac)
     diag = h.reshape(size * size, n)[:: size + 1]
     out = np.empty((n, size, size))
     low, inv_diag = _cholesky(h)

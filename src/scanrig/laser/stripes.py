@@ -248,7 +248,7 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, pr
     p0 = _start(y, background.astype(np.float64), half, max_width_px, sat)
     lower = np.array([MIN_PEAK_DN, -half, MIN_WIDTH_PX, -np.inf])
     upper = np.array([np.inf, half, max_width_px, np.inf])
-    res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True)
+    res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True, noise_var=noise**2)
     p = res.params
     var = parameter_covariance(res, noise, correlation=correlation, shot_slope=shot_slope)[:, 1, 1]
     ok = np.isfinite(var) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX) & (res.dof > 0)
@@ -280,8 +280,9 @@ _CLIPPED_START_WIDTHS = np.array([0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0])
 
 
 def _start(y, background, half, max_width_px, saturated) -> np.ndarray:
-    """Start values ``(n, 4)`` from windows ``y (W, n)``: peak, centroid and width from the excess
-    area of the ±2 px core.
+    """Start values ``(n, 4)`` from windows ``y (W, n)``: the Gaussian through the three central
+    pixels (:func:`_log_parabola`), else peak, centroid and width from the excess area of the ±2 px
+    core.
 
     A clipped core has no usable peak or area; there the centre starts at the middle of the
     clipped run and the width at the best of a few trial widths, each with peak and background
@@ -293,12 +294,31 @@ def _start(y, background, half, max_width_px, saturated) -> np.ndarray:
     total = np.maximum(excess.sum(axis=0), 1e-9)
     x0 = (excess * np.arange(-2.0, 3.0)[:, None]).sum(axis=0) / total
     width = total / (np.sqrt(2 * np.pi) * peak)
+    _log_parabola(core[1:4], peak, x0, width)
     start = np.stack([peak, x0, np.clip(width, 0.5, max_width_px), background], axis=1)
     if saturated is not None:
         clipped = saturated[half]
         if clipped.any():
             start[clipped] = _clipped_start(y[:, clipped].T, saturated[:, clipped].T, half, max_width_px)
     return start
+
+
+def _log_parabola(excess, peak, x0, width) -> None:
+    """Where the three central pixels ``excess (3, n)`` above the background are positive and
+    curve down in log, overwrite ``peak, x0, width (n,)`` by the Gaussian through them, the
+    pixel-integrated profile's width ``√(s² + 1/12)`` taken as that of the samples (a start within
+    a few per cent of the fit for widths from 0.5 px)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log = np.log(excess)
+        curvature = log[0] - 2.0 * log[1] + log[2]
+        offset = 0.5 * (log[0] - log[2]) / curvature
+        sampled_var = -1.0 / curvature
+        width_px = np.sqrt(np.maximum(sampled_var - 1.0 / 12.0, MIN_WIDTH_PX**2))
+        top = np.exp(log[1] + 0.5 * offset**2 / sampled_var) * np.sqrt(sampled_var) / width_px
+    use = np.isfinite(curvature) & (curvature < 0.0) & (np.abs(offset) < 1.0)
+    np.copyto(peak, top, where=use)
+    np.copyto(x0, offset, where=use)
+    np.copyto(width, width_px, where=use)
 
 
 def _clipped_start(y, saturated, half, max_width_px) -> np.ndarray:

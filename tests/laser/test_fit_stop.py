@@ -1,0 +1,119 @@
+"""The statistical stop rule, the step-length correction and the held bounds of ``fit_batch``.
+
+With the pixels' noise variance σ² given, a fit stops once what is left to gain is at most
+``STOP_CHI2 · σ²``, which leaves every parameter within ``√STOP_CHI2`` of its own standard deviation
+of the minimum (the notes of :func:`scanrig.laser.fit.fit_batch`). The tests compare with the same
+windows fitted to convergence (relative cost decrease 1e-14, 300 iterations), on small residuals
+(the grey stripes) and on large ones (a halo the model lacks, where Gauss–Newton zig-zags).
+"""
+
+import numpy as np
+import pytest
+
+from scanrig.laser import stripes
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, STOP_CHI2, fit_batch, minor_model_1d
+
+from .synth import integrated
+
+HALF = 9
+X = np.arange(-HALF, HALF + 1.0)
+NOISE = 2.0  # DN
+MAX_WIDTH_PX = 3.0
+LOWER = np.array([MIN_PEAK_DN, -HALF, MIN_WIDTH_PX, -np.inf])
+UPPER = np.array([np.inf, HALF, MAX_WIDTH_PX, np.inf])
+#: The stop rule's bound on a parameter's distance from the minimum, in its standard deviations.
+BOUND_SIGMAS = np.sqrt(STOP_CHI2)
+
+
+def _windows(rng, n, halo=0.0):
+    """Noisy stripe profiles ``(W, n)`` (peak 40-250 DN over 0-30 DN, width 0.8-2.5 px, centre
+    within ±0.5 px); with ``halo``, that share of the light is spread 3 px wider, which the model
+    lacks."""
+    centre, width = rng.uniform(-0.5, 0.5, n), rng.uniform(0.8, 2.5, n)
+    peak, background = rng.uniform(40, 250, n), rng.uniform(0, 30, n)
+    beam = (1 - halo) * integrated(X[:, None], centre, width) + halo * integrated(X[:, None], centre, np.hypot(width, 3.0))
+    return background + peak * beam + rng.normal(0, NOISE, (X.size, n))
+
+
+def _counted(model, counter):
+    """``model`` that adds the number of candidates of each evaluation to ``counter``."""
+    def wrapped(p):
+        counter.append(p.shape[1])
+        return model(p)
+    return wrapped
+
+
+def _fits(y, p0, **options):
+    """The statistical fit, the fully converged one, and model evaluations per candidate of each."""
+    n = y.shape[1]
+    mask = np.ones(y.shape, bool)
+    model = minor_model_1d(X)
+    quick_calls, converged_calls = [], []
+    quick = fit_batch(_counted(model, quick_calls), y, mask, p0, LOWER, UPPER, minor=True,
+                      noise_var=np.full(n, NOISE**2), **options)
+    converged = fit_batch(_counted(model, converged_calls), y, mask, p0, LOWER, UPPER, n_iter=300, tol=1e-14,
+                          minor=True)
+    return quick, converged, sum(quick_calls) / n, sum(converged_calls) / n
+
+
+def test_statistical_stop_leaves_every_parameter_within_its_bound_and_saves_evaluations():
+    """Small residuals, the start of the stripe detector: each parameter within √STOP_CHI2 of its σ
+    of the converged fit, in fewer model evaluations than the relative rule takes."""
+    rng = np.random.default_rng(41)
+    n = 400
+    y = _windows(rng, n)
+    p0 = stripes._start(y, np.full(n, 15.0), HALF, MAX_WIDTH_PX, None)
+    quick, converged, evaluations, _ = _fits(y, p0)
+    sigma = NOISE * np.sqrt(np.diagonal(converged.info_inv, axis1=1, axis2=2))  # (n, 4)
+    distance = np.abs(quick.params - converged.params) / sigma
+    assert distance.max() <= BOUND_SIGMAS
+    relative_calls = []
+    fit_batch(_counted(minor_model_1d(X), relative_calls), y, np.ones(y.shape, bool), p0, LOWER, UPPER, minor=True)
+    assert evaluations < sum(relative_calls) / n - 1.0  # at least one evaluation fewer per candidate
+
+
+def test_large_residuals_do_not_stop_the_fit_early():
+    """A 30 % halo the model lacks: χ²/dof well above 1 and Gauss–Newton's curvature wrong, which
+    the rule measures along each step; the centre still ends within its bound of the minimum, in a
+    few steps."""
+    rng = np.random.default_rng(42)
+    n = 300
+    y = _windows(rng, n, halo=0.3)
+    p0 = stripes._start(y, np.full(n, 15.0), HALF, MAX_WIDTH_PX, None)
+    quick, converged, evaluations, _ = _fits(y, p0, n_iter=60)
+    assert np.median(converged.chi2_unit / converged.dof) > 2 * NOISE**2  # large residuals, as intended
+    sigma_x0 = NOISE * np.sqrt(converged.info_inv[:, 1, 1])
+    assert np.all(np.abs(quick.params[:, 1] - converged.params[:, 1]) <= BOUND_SIGMAS * sigma_x0)
+    assert evaluations < 6.0
+
+
+def test_a_parameter_pushed_against_its_bound_is_held_and_the_others_converge():
+    """Profiles wider than the largest width fitted: the width rests on its bound, and the fit
+    reaches the bounded minimum (peak, centre and background of the reduced problem)."""
+    rng = np.random.default_rng(43)
+    n = 100
+    centre = rng.uniform(-0.5, 0.5, n)
+    y = 10.0 + 150.0 * integrated(X[:, None], centre, 4.5) + rng.normal(0, NOISE, (X.size, n))
+    p0 = stripes._start(y, np.full(n, 10.0), HALF, MAX_WIDTH_PX, None)
+    quick, converged, _, _ = _fits(y, p0)
+    assert np.all(quick.params[:, 2] == MAX_WIDTH_PX)
+    # the bounded minimum: the gradient of the free parameters is zero there
+    mu, jac = minor_model_1d(X)(quick.params.T)
+    gradient = np.einsum("imn,mn->ni", jac, y - mu)  # (n, 4), Jᵀr
+    scale = NOISE * np.sqrt(np.einsum("mn,mn->n", jac[1], jac[1]))  # of the centre's
+    assert np.all(np.abs(gradient[:, 1]) <= BOUND_SIGMAS * scale)
+    assert np.all(gradient[:, 2] >= 0.0)  # the cost would fall beyond the bound: it is held
+    np.testing.assert_allclose(quick.params[:, 1], converged.params[:, 1], atol=0.05)
+
+
+@pytest.mark.parametrize("width", [0.5, 0.8, 1.5, 2.5])
+def test_log_parabola_start_is_close_to_the_truth(width):
+    """Noise-free profiles: the start's centre within 0.05 px and width within 10 % (the three-point
+    Gaussian through the samples of a pixel-integrated profile)."""
+    n = 50
+    centre = np.linspace(-0.5, 0.5, n)
+    y = 12.0 + 180.0 * integrated(X[:, None], centre, width)
+    start = stripes._start(y, np.full(n, 12.0), HALF, MAX_WIDTH_PX, None)
+    np.testing.assert_allclose(start[:, 1], centre, atol=0.05)
+    np.testing.assert_allclose(start[:, 2], width, rtol=0.1)
+    np.testing.assert_allclose(start[:, 0], 180.0, rtol=0.1)
