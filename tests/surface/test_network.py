@@ -50,7 +50,7 @@ def test_charts_of_different_sizes_are_fitted_in_groups_and_returned_in_input_or
     sizes, offsets = [40, 400, 90], [2.0, -1.0, 0.5]
     uv = [rng.uniform(-1, 1, (n, 2)) for n in sizes]
     z = [o + 0.3 * p[:, 0] + rng.normal(0, 0.01, len(p)) for o, p in zip(offsets, uv)]
-    settings = FitSettings(hidden=6, depth=1, epochs=60, robust_epochs=60, update_every=30,
+    settings = FitSettings(hidden=6, depth=1, epochs=60, robust_epochs=60, refit_epochs=60, update_every=30,
                            start_epochs=20, n_boot=50)
     fits = fit_charts_by_size(uv, z, settings=settings, rng=np.random.default_rng(0), overhead_points=10)
     padded = np.zeros((3, max(sizes), 2))

@@ -22,10 +22,10 @@ with the choices documented in ``docs/surface-filter.md``:
    of :mod:`scanrig.surface.hampel`.
 5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen (a full
    network's weight bounded by the one of its point's held-out residual), every network
-   retrained from its initial hidden layers by weighted least squares for ``epochs`` epochs (the
-   schedule of the plain least-squares fit): the one-step reweighting of reweighted LTS, which
-   forgets the trajectory of the redescending fit and keeps what it learnt, which points to
-   trust. Before it and in the output-layer steps after it, each weight is multiplied by the
+   trained on, from the hidden layers the Hampel phase left, by weighted least squares for
+   ``refit_epochs`` epochs with a smaller, warmed-up step: the one-step reweighting of
+   reweighted LTS, which keeps what the redescending fit learnt, which points to trust, and
+   settles the fit those weights define. Before it and in the output-layer steps after it, each weight is multiplied by the
    point's inlier posterior under a local mixture (:mod:`scanrig.surface.mixture`), which
    takes out part of the one-sided outliers inside the noise band.
 
@@ -107,10 +107,18 @@ class FitSettings:
         Iteratively reweighted least-squares steps of the output layer after the last epoch.
     epochs : int
         Full-batch epochs of least-squares training: the baselines' whole training (``"mse"``;
-        ``"huber"`` on its loss) and the reweighting step of ``"hampel"``.
+        ``"huber"`` on its loss).
     refit : bool
         Reweighting step (``"hampel"`` only): the final robust weights frozen, the networks
-        retrained from their initial hidden layers by weighted least squares for ``epochs``.
+        trained on from the Hampel phase's hidden layers by weighted least squares.
+    refit_epochs, refit_step, refit_warmup_epochs : int, float, int
+        Schedule of the reweighting step: its epochs, its Adam step as a fraction of
+        ``learning_rate`` and the epochs of its linear warm-up. Trained on from the Hampel
+        phase instead of retrained from the initial weights for ``epochs`` (200) at the full
+        step, it needs fewer epochs: the 100 000-point scan 1.2x less CPU (the 64 x 64
+        protocol cells at 10 and 20 %, two data draws: mean ratio to the oracle 0.957 and
+        0.997 instead of 1.006 and 1.017, worst 1.093 instead of 1.116). At the full step
+        (200 epochs, 20 warm-up) the sphere and the crease went to 1.13-1.19.
     learning_rate : float
         Adam step at the start; it decays by cosine to ``learning_rate / 20``.
     constants : HampelConstants
@@ -167,6 +175,9 @@ class FitSettings:
     final_irls: int = 5
     epochs: int = 200
     refit: bool = True
+    refit_epochs: int = 100
+    refit_step: float = 0.3
+    refit_warmup_epochs: int = 20
     learning_rate: float = 0.01
     constants: HampelConstants = field(default_factory=HampelConstants)
     scale_cut: float = 2.5
@@ -186,6 +197,9 @@ class FitSettings:
             raise InputError(f"n_folds must be >= 2, got {self.n_folds}")
         if min(self.epochs, self.robust_epochs, self.update_every, self.final_irls) < 1:
             raise InputError("epochs, robust_epochs, update_every and final_irls must be >= 1")
+        if min(self.refit_epochs, self.refit_warmup_epochs) < 0 or not self.refit_step > 0:
+            raise InputError(f"refit_epochs and refit_warmup_epochs must be >= 0 and refit_step > 0, got "
+                             f"{self.refit_epochs}, {self.refit_warmup_epochs}, {self.refit_step}")
         if min(self.start_epochs, self.warmup_epochs, self.mixture_neighbours) < 0:
             raise InputError(f"start_epochs, warmup_epochs and mixture_neighbours must be >= 0, got "
                              f"{self.start_epochs}, {self.warmup_epochs}, {self.mixture_neighbours}")
@@ -502,7 +516,6 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     cut = np.full(n_charts, np.inf)
     weight = rows.m.double()
     history = []
-    initial = [p.detach().clone() for p in nets.hidden_parameters()]
     if settings.loss == "hampel":  # high-breakdown start: weights and scale from local LTS planes
         good, start_upper = robust_start(uv, z, valid, q=settings.q, cut=settings.constants.r, rng=rng,
                                          k=settings.start_neighbours, scale_cut=settings.scale_cut,
@@ -551,9 +564,8 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     active.write_back()
     weight = _output_layer_irls(nets, rows, weight, settings, state)
     if settings.loss == "hampel" and settings.refit:
-        # reweighting step: the robust weights frozen, every copy retrained from its initial
-        # hidden layers by weighted least squares (what the robust fit has learnt is which
-        # points to trust and how much; the trajectory of the redescending fit is forgotten)
+        # reweighting step: the robust weights frozen, every copy trained on by weighted least
+        # squares (what the robust fit has learnt is which points to trust and how much)
         z_chart, heldout = _heldout_prediction(nets, x, t, fold)
         weight = _bounded_by_heldout(rows, weight, z_chart - heldout, settings, state)
         neighbours = None
@@ -561,10 +573,9 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
             neighbours = chart_neighbours(uv, train, settings.mixture_neighbours)
             weight = weight * _mixture_weights(rows, neighbours, (z_chart - heldout).double().cpu().numpy(),
                                                settings, state)
-        with torch.no_grad():
-            for p, p0 in zip(nets.hidden_parameters(), initial):
-                p.copy_(p0)
-        _weighted_least_squares(nets, rows, weight, settings, settings.epochs)
+        _weighted_least_squares(nets, rows, weight, settings, settings.refit_epochs,
+                                learning_rate=settings.refit_step * settings.learning_rate,
+                                warmup_epochs=settings.refit_warmup_epochs)
         weight = _output_layer_irls(nets, rows, weight, settings, state, monotone=True, neighbours=neighbours)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
@@ -776,17 +787,19 @@ def _bounded_by_heldout(rows: _Blocks, weight: torch.Tensor, heldout_residual: t
 
 
 def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor,
-                            settings: FitSettings, epochs: int) -> torch.Tensor:
+                            settings: FitSettings, epochs: int, *, learning_rate: float | None = None,
+                            warmup_epochs: int = 0) -> torch.Tensor:
     """Train every copy on the weighted squared loss with fixed weights, in place.
 
-    The schedule is the plain least-squares one (Adam with cosine decay over ``epochs``, the
-    output layer at its weighted optimum every epoch); converged copies stop early
-    (:class:`_Active`). Returns the epoch at which each copy stopped, (M,) int tensor
+    The schedule is the plain least-squares one (Adam with cosine decay over ``epochs`` from
+    ``learning_rate``, default ``settings.learning_rate``, after a linear warm-up over
+    ``warmup_epochs``; the output layer at its weighted optimum every epoch); converged copies
+    stop early (:class:`_Active`). Returns the epoch at which each copy stopped, (M,) int tensor
     (``epochs``: trained throughout).
     """
     # the weights are fixed: their square roots once, not every epoch
-    active = _Active(nets, rows, _adam(nets, settings, epochs), settings, weight=weight, w=weight.float(),
-                     root=weight.sqrt())
+    opt = _adam(nets, settings, epochs, warmup_epochs, learning_rate=learning_rate)
+    active = _Active(nets, rows, opt, settings, weight=weight, w=weight.float(), root=weight.sqrt())
 
     def loss():
         data = active.per_block
@@ -806,11 +819,13 @@ def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.
     return torch.where(active.stopped < 0, epochs, active.stopped)
 
 
-def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int, warmup_epochs: int = 0) -> Adam:
+def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int, warmup_epochs: int = 0, *,
+          learning_rate: float | None = None) -> Adam:
     """Adam on the hidden layers and its step schedule for a phase of ``epochs`` epochs.
 
-    The step decays by cosine from ``settings.learning_rate`` to a twentieth of it; over the
-    first ``warmup_epochs`` it is also multiplied by a linear ramp ``(epoch + 1) / warmup_epochs``.
+    The step decays by cosine from ``learning_rate`` (default ``settings.learning_rate``) to a
+    twentieth of it; over the first ``warmup_epochs`` it is also multiplied by a linear ramp
+    ``(epoch + 1) / warmup_epochs``.
     """
     floor = 1.0 / 20.0
 
@@ -818,7 +833,7 @@ def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int, warmup_epoc
         cosine = floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * min(epoch, epochs) / max(epochs, 1)))
         return cosine * min(1.0, (epoch + 1) / warmup_epochs) if warmup_epochs > 0 else cosine
 
-    return Adam(nets.hidden_parameters(), settings.learning_rate, factor)
+    return Adam(nets.hidden_parameters(), settings.learning_rate if learning_rate is None else learning_rate, factor)
 
 
 def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitSettings, state: dict,
