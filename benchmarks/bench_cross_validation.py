@@ -17,7 +17,11 @@ principal point) dominate. The acceptance of the cross-validation is the whitene
 0.5-2 on every seed and shot count, median near 1. When the sigmas are right, ``ratio² dof`` is
 chi-square over ``dof`` directions: about 1 % of the ratios fall below 0.5 at 9 directions by
 chance alone and 4e-5 above 2, so the summary prints how many chance puts outside 0.5-2 and the
-smallest chi-square tail probability of all the checks.
+smallest chi-square tail probability of all the checks. Whether those tail probabilities are
+uniform, as they are when the sigmas are right, it judges by a Kolmogorov-Smirnov test per camera
+(the three cameras of a session share its shots, so their ratios are correlated) and by the
+counts below 1e-2 and 1e-3 against their expectation. ``--first-seed 20 --seeds 320 --shots 20``
+draws fresh sessions for that: the first 20 seeds are those the acceptance table was read from.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import argparse
 import time
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.stats import chi2, kstest
 
 from scanrig.calibration.pipeline import calibrate
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
@@ -43,6 +47,7 @@ SIGMA_PX = 0.1
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds run from here (fresh draws: 20 and on)")
     parser.add_argument("--shots", default="10,20,40,80", help="comma-separated shot counts")
     parser.add_argument("--caliscope", action="store_true", help="also the real 4-webcam rig")
     args = parser.parse_args()
@@ -54,7 +59,7 @@ def main() -> None:
     print("shots seed  time | per camera: whitened ratio (dof), RMS measured / predicted px = plain ratio")
     checks = {}       # shots -> [(whitened ratio, dof, plain ratio, seed, camera)]
     for n_shots in (int(s) for s in args.shots.split(",")):
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             rng = np.random.default_rng(seed)
             cams = ring_cameras(3, rng=rng)
             sim = simulate(cams, target, n_shots, SIGMA_PX, rng, cover=True, min_square_px=DETECTABLE_SQUARE_PX)
@@ -84,6 +89,7 @@ def main() -> None:
         (chi2.sf(row[0] ** 2 * row[1], row[1]), row, n) for n, rows in checks.items() for row in rows)
     print(f"smallest chi-square tail probability: {p:.1e} ({shots} shots, seed {seed}, {name}: ratio {ratio:.2f} "
           f"over {dof} directions)")
+    print(_tail_summary(every))
 
 
 def _summary_row(label: str, rows: list) -> str:
@@ -96,6 +102,20 @@ def _summary_row(label: str, rows: list) -> str:
     chance = np.sum(chi2.cdf(0.25 * dof, dof) + chi2.sf(4.0 * dof, dof))
     return (f"{label} | {np.median(w):.2f} [{w.min():.2f}, {w.max():.2f}], {_outside(w)} ({chance:.1f}) | "
             f"{np.median(p):.2f} [{p.min():.2f}, {p.max():.2f}], {_outside(p)} | {len(w)}")
+
+
+def _tail_summary(rows: list) -> str:
+    """Whether the checks' chi-square tail probabilities are uniform, as they are when the sigmas are right.
+
+    Kolmogorov-Smirnov against uniform per camera (the cameras of one session share its shots, so
+    their ratios are correlated; one camera's checks are independent), and the counts below 1e-2
+    and 1e-3 against their expectation.
+    """
+    p = np.array([chi2.sf(row[0] ** 2 * row[1], row[1]) for row in rows])
+    cameras = np.array([row[4] for row in rows])
+    ks = ", ".join(f"{name} {kstest(p[cameras == name], 'uniform').pvalue:.2f}" for name in sorted(set(cameras)))
+    return (f"tail probabilities uniform? KS p-value per camera: {ks}; below 1e-2: {np.count_nonzero(p < 1e-2)} "
+            f"(expected {1e-2 * len(p):.1f}), below 1e-3: {np.count_nonzero(p < 1e-3)} (expected {1e-3 * len(p):.2f})")
 
 
 def _outside(ratios: np.ndarray) -> int:
