@@ -114,6 +114,22 @@ def test_negative_warm_up_is_rejected():
         FitSettings(warmup_epochs=-1)
 
 
+def test_reweighting_schedule_is_checked():
+    with pytest.raises(InputError, match="refit_epochs and refit_warmup_epochs must be >= 0 and refit_step > 0, "
+                                         "got 100, 20, 0.0"):
+        FitSettings(refit_step=0.0)
+    with pytest.raises(InputError, match="got -1, 20, 0.3"):
+        FitSettings(refit_epochs=-1)
+
+
+def test_learning_rate_overrides_the_settings_step():
+    nets = HeightFieldNets(1, hidden=4, depth=1, architecture="mlp", generator=torch.Generator().manual_seed(0))
+    settings = FitSettings()
+    full = _step_sizes(_adam(nets, settings, 100), 100)
+    smaller = _step_sizes(_adam(nets, settings, 100, learning_rate=0.3 * settings.learning_rate), 100)
+    np.testing.assert_allclose(smaller, 0.3 * full, rtol=1e-12)
+
+
 def _batch_cost(batches, sizes, overhead):
     return sum(overhead + sizes[b].max() * len(b) for b in batches)
 

@@ -115,7 +115,7 @@ class FitSettings:
         Schedule of the reweighting step: its epochs, its Adam step as a fraction of
         ``learning_rate`` and the epochs of its linear warm-up. Trained on from the Hampel
         phase instead of retrained from the initial weights for ``epochs`` (200) at the full
-        step, it needs fewer epochs: the 100 000-point scan 1.2x less CPU (the 64 x 64
+        step, it needs fewer epochs: the 100 000-point scan 1.25x less CPU (the 64 x 64
         protocol cells at 10 and 20 %, two data draws: mean ratio to the oracle 0.957 and
         0.997 instead of 1.006 and 1.017, worst 1.093 instead of 1.116). At the full step
         (200 epochs, 20 warm-up) the sphere and the crease went to 1.13-1.19.
