@@ -20,7 +20,7 @@ chance alone and 4e-5 above 2, so the summary prints how many chance puts outsid
 smallest chi-square tail probability of all the checks. Whether those tail probabilities are
 uniform, as they are when the sigmas are right, it judges by a Kolmogorov-Smirnov test per camera
 (the three cameras of a session share its shots, so their ratios are correlated) and by the
-counts below 1e-2 and 1e-3 against their expectation. ``--first-seed 20 --seeds 320 --shots 20``
+counts below 1e-2 and 1e-3 against their expectation. ``--first-seed 20 --seeds 420 --shots 20``
 draws fresh sessions for that: the first 20 seeds are those the acceptance table was read from.
 """
 
