@@ -151,7 +151,7 @@ def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, l
     p0[:, 2:8] *= np.exp(start[:, :1])  # the plain model's levels are the left side's
     step_lower, step_upper = step_bounds(x.size // 2)
     fit, cov = _fit(ys, us, noise, with_step(model, x, 3), p0, np.r_[lower, step_lower], np.r_[upper, step_upper], 1,
-                    n_iter=_STEP_ITERATIONS)
+                    n_iter=_STEP_ITERATIONS, statistical=False)
     q, var = fit.params, cov[:, 0, 0]
     keep = (np.isfinite(var) & (np.abs(q[:, 0]) <= max_shift_px[suspect])
             & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof))
@@ -317,17 +317,20 @@ def _plain_start(y, usable, noise, laser, trial, n_axes):
                           axis=1)
 
 
-def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=12):
+def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=12, statistical=True):
     """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` from ``p0 (n, P)`` (``normal``:
     the model's normal equations, ``n_iter`` the most iterations, see
     :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance ``(n, P, P)`` of the
     parameters, inflated where the model leaves a misfit that pulls the centre (its first ``n_axes``
-    parameters, :func:`~scanrig.laser.fit.centre_misfit`)."""
+    parameters, :func:`~scanrig.laser.fit.centre_misfit`). With ``statistical``, a fit stops by
+    fit_batch's statistical rule (the whitened pixels have unit variance), else by its relative
+    tolerance."""
     n, m = y.shape[:2]
     # candidate-minor stacks, channel-major pixels: (3 M, n)
     y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
     mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
-    res = fit_batch(model, y_minor, mask, p0, lower, upper, n_iter, minor=True, normal=normal)
+    res = fit_batch(model, y_minor, mask, p0, lower, upper, n_iter, minor=True, normal=normal,
+                    noise_var=np.ones(n) if statistical else None)
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
     if good.any():  # whitened pixels: unit variance where fitted

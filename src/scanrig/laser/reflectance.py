@@ -58,20 +58,20 @@ def with_step(model, x: np.ndarray, n_channels: int):
     xc = x[:, None]
 
     def stepped(p):
-        n_plain = p.shape[0] - 2
+        n_plain, n = p.shape[0] - 2, p.shape[1]
         mu0, jac0 = model(p[:n_plain])
         d, e = p[n_plain], p[n_plain + 1]
         t = (xc - e) * (1.0 / EDGE_WIDTH_PX)  # (W, n)
         cdf = ndtr(t)
-        rho = np.tile(np.exp(d * cdf), (n_channels, 1))  # (C W, n)
-        dlog = np.empty((2,) + t.shape)  # ∂ log ρ / ∂(d, e)
-        dlog[0] = cdf
-        dlog[1] = d * (-_INV_ROOT_2PI / EDGE_WIDTH_PX) * np.exp(-0.5 * t * t)
-        mu = mu0 * rho
+        rho = np.exp(d * cdf)  # (W, n), the same on every channel
+        dlog = np.empty((2, 1) + t.shape)  # ∂ log ρ / ∂(d, e)
+        dlog[0, 0] = cdf
+        dlog[1, 0] = d * (-_INV_ROOT_2PI / EDGE_WIDTH_PX) * np.exp(-0.5 * t * t)
+        mu = mu0.reshape(n_channels, -1, n) * rho  # (C, W, n)
         jac = np.empty((n_plain + 2,) + mu.shape)
-        np.multiply(jac0, rho, out=jac[:n_plain])
-        jac[n_plain:] = np.tile(dlog, (1, n_channels, 1)) * mu
-        return mu, jac
+        np.multiply(jac0.reshape(n_plain, n_channels, -1, n), rho, out=jac[:n_plain])
+        np.multiply(dlog, mu, out=jac[n_plain:])
+        return mu.reshape(-1, n), jac.reshape(n_plain + 2, -1, n)
 
     return stepped
 
