@@ -368,35 +368,46 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray):
     """
     edges = _edges(x)
     w_px = x.size
-    # parameter of each basis on channel c: g -> a_c, ∂g/∂x0 -> x0, ∂g/∂s -> s, 1 -> b_c
-    target = [[2 + c, 0, 1, 5 + c] for c in range(3)]
+    inv_noise = (1.0 / np.asarray(noise, float))[:, None]  # (3, 1)
+    rows, cols = np.tril_indices(4)  # the pairs (i, j ≤ i) of bases; pair[i, j]: the index of one
+    pair = {(i, j): k for k, (i, j) in enumerate(zip(rows, cols))}
 
     def normal(p, y, w):
         k = p.shape[1]
         basis = np.empty((4, w_px, k))
         _profile(edges, p[0], p[1], basis)  # g, ∂g/∂x0, ∂g/∂s
         basis[3] = 1.0
-        cost = np.zeros(k)
+        amp = p[2:5] * inv_noise  # (3, k), whitened
+        r = y.reshape(3, w_px, k) - basis[0] * amp[:, None]
+        r -= (p[5:8] * inv_noise)[:, None]
+        if w is None:
+            sums = np.broadcast_to(_gram(basis)[rows, cols][:, None], (rows.size, 3, k))
+        else:
+            w3 = w.reshape(3, w_px, k)
+            r *= w3
+            sums = np.stack([_gram(basis * w3[c])[rows, cols] for c in range(3)], axis=1)  # Σ w f_i f_j, (10, 3, k)
+        sg, sx, ss, s1 = np.stack([np.einsum("imn,mn->in", basis, r[c]) for c in range(3)], axis=1)  # Σ r f_i
         hess = np.zeros((8, 8, k))
-        grad = np.zeros((8, k))
-        for c in range(3):  # the three channels: a loop over a fixed axis of length 3, not over data
-            pixels = slice(c * w_px, (c + 1) * w_px)
-            amp = p[2 + c] / noise[c]
-            r = y[pixels] - basis[0] * amp
-            r -= p[5 + c] / noise[c]
-            weighted = basis if w is None else basis * w[pixels]
-            if w is not None:
-                r *= w[pixels]
-            cost += np.einsum("mn,mn->n", r, r)
-            sums = _gram(weighted)  # Σ w f_i f_j (w is 0 or 1), lower triangle
-            grad_c = np.einsum("imn,mn->in", basis, r)
-            scale = (1.0 / noise[c], amp, amp, 1.0 / noise[c])
-            for i in range(4):
-                grad[target[c][i]] += scale[i] * grad_c[i]
-                for j in range(i + 1):
-                    row, col = max(target[c][i], target[c][j]), min(target[c][i], target[c][j])
-                    hess[row, col] += (scale[i] * scale[j]) * sums[i, j]
-        return cost, hess, grad
+        grad = np.empty((8, k))
+        # x0 and s, shared: the channels' sums scaled by amp²
+        amp2 = amp * amp
+        hess[0, 0] = np.einsum("cn,cn->n", amp2, sums[pair[1, 1]])
+        hess[1, 0] = np.einsum("cn,cn->n", amp2, sums[pair[2, 1]])
+        hess[1, 1] = np.einsum("cn,cn->n", amp2, sums[pair[2, 2]])
+        grad[0] = np.einsum("cn,cn->n", amp, sx)
+        grad[1] = np.einsum("cn,cn->n", amp, ss)
+        # a_c and b_c: channel c's sums only (the rows of the three channels at once)
+        amp_inv = amp * inv_noise
+        for base, target in ((0, 2), (3, 5)):  # g -> a_c, 1 -> b_c
+            hess[target : target + 3, 0] = amp_inv * sums[pair[max(base, 1), min(base, 1)]]
+            hess[target : target + 3, 1] = amp_inv * sums[pair[max(base, 2), min(base, 2)]]
+        channel = np.arange(3)
+        hess[2 + channel, 2 + channel] = sums[pair[0, 0]] * inv_noise**2
+        hess[5 + channel, 2 + channel] = sums[pair[3, 0]] * inv_noise**2
+        hess[5 + channel, 5 + channel] = sums[pair[3, 3]] * inv_noise**2
+        grad[2:5] = sg * inv_noise
+        grad[5:8] = s1 * inv_noise
+        return np.einsum("cmn,cmn->n", r, r), hess, grad
 
     return normal
 
