@@ -438,14 +438,15 @@ def _channels(g: np.ndarray, dg: np.ndarray, per_channel: np.ndarray, noise: np.
     ``jac (K + 6, 3 M, n)``.
     """
     k, m, n = dg.shape
+    sigma = np.asarray(noise, float)[:, None, None]  # (3, 1, 1)
+    amp = per_channel[:3, None] / sigma  # (3, 1, n), whitened
     jac = np.zeros((k + 6, 3, m, n))
-    mu = np.empty((3, m, n))
-    for c in range(3):  # the three channels: a loop over a fixed axis of length 3, not over data
-        a = per_channel[c] / noise[c]
-        jac[:k, c] = dg * a
-        jac[k + c, c] = g / noise[c]
-        jac[k + 3 + c, c] = 1.0 / noise[c]
-        mu[c] = g * a + per_channel[3 + c] / noise[c]
+    np.multiply(dg[:, None], amp, out=jac[:k])
+    channel = np.arange(3)
+    jac[k + channel, channel] = g / sigma
+    jac[k + 3 + channel, channel] = 1.0 / sigma
+    mu = g * amp
+    mu += per_channel[3:, None] / sigma
     return mu.reshape(3 * m, n), jac.reshape(k + 6, 3 * m, n)
 
 
