@@ -18,7 +18,8 @@ Internally the stacks are *candidate-minor*: pixel ``m`` of all candidates is on
 (``(M, n)`` data, ``(P, M, n)`` Jacobian, ``(P, n)`` parameters), so every elementwise operation
 and every sum over a window runs over long contiguous rows instead of many 19-element ones, and
 each entry of ``JᵀJ`` is one ``(n,)`` array; the small systems are then solved by a Cholesky
-factorisation written out entry by entry over the candidate axis (:func:`_marquardt_step`).
+factorisation written out entry by entry over the candidate axis (:func:`_damped_solve`), or, for a
+batch too small to repay its fixed cost of order P³ NumPy calls, by LAPACK.
 """
 
 from __future__ import annotations
