@@ -35,6 +35,7 @@ from scanrig.errors import EstimationError, InputError
 from scanrig.geometry.camera import Camera
 from scanrig.geometry.distortion import MODEL_COEFFICIENTS
 from scanrig.geometry.transform import RigidTransform
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.targets import Target
 
 #: Fewest points of one board in one view for a homography (4 would be exact; 6 gives redundancy).
@@ -48,8 +49,6 @@ ZHANG_ACCEPT_RMS_PX = 2.0
 #: solved again without them.
 PNP_GROSS_SIGMAS = 5.0
 PNP_MAX_GROSS_FRACTION = 0.25
-#: Median absolute deviation -> standard deviation for Gaussian errors.
-MAD_TO_SIGMA = 1.4826
 #: Most planes given to ``calibrateCamera`` per camera (evenly spread), to keep it fast.
 MAX_PLANES_FOR_INTRINSICS = 40
 #: Least ratio of the smaller to the larger principal spread of a board's points in one view for

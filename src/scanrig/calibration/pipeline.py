@@ -16,7 +16,7 @@ import numpy as np
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
 from scanrig.calibration.cross_validation import CrossValidation, compare_halves, cross_validation_warnings
 from scanrig.calibration.flex_check import flex_warning
-from scanrig.calibration.init import MAD_TO_SIGMA, MIN_POINTS_PER_PLANE, Initialisation, initialise
+from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
 from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_constraints, undetermined_intrinsics,
                                                   with_known_intrinsics)
 from scanrig.calibration.observations import Observations
@@ -24,6 +24,7 @@ from scanrig.calibration.summary import dropped_view_warnings
 from scanrig.calibration.uncertainty import Uncertainty, covariance, projection_uncertainty
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.rig import Rig
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.targets import Target
 
 #: Camera models a calibration may fit.

@@ -20,6 +20,9 @@ from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.camera import Camera
 from scanrig.geometry.checks import check_points
 
+#: Median absolute deviation -> standard deviation of Gaussian errors (1 / Φ⁻¹(3/4)): the robust
+#: scale every estimator of the package uses.
+MAD_TO_SIGMA = 1.4826
 #: Relative determinant below which a symmetric 3×3 matrix counts as singular: the determinant
 #: is compared with the cube of the mean diagonal, so the test does not depend on units.
 SINGULAR_RTOL = 1e-12

@@ -18,12 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.inspect.closest import CadIndex
 
 #: Tukey biweight tuning constant, in robust sigmas (95 % efficiency for Gaussian noise).
 TUKEY_C = 4.685
-#: MAD to Gaussian sigma.
-MAD_TO_SIGMA = 1.4826
 #: Iterations stop when the update moves no point of the cloud by more than this fraction of its size.
 STEP_TOL = 1e-9
 #: Iteration limit.

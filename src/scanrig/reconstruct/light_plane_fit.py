@@ -16,6 +16,7 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.geometry.checks import check_points
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.reconstruct.light_plane import (INLIER_SIGMAS, LightPlane, fit_plane, intersect_plane, plane_from,
                                              planes_through, with_jackknife_uncertainty)
 
@@ -86,8 +87,6 @@ LINE_TRIALS = 100
 CONSENSUS_TRIALS = 500
 #: The consensus score (median absolute distance) is taken over at most this many points.
 CONSENSUS_POINTS = 4000
-#: Median absolute deviation -> standard deviation for Gaussian noise.
-MAD_TO_SIGMA = 1.4826
 #: Least-squares refits on the inliers, each with the scale re-measured, at most.
 MAX_REFITS = 20
 #: RMS of a unit normal distribution truncated at ±INLIER_SIGMAS (3): the inliers' RMS divided by

@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.surface.charts import frames_from_normals
 from scanrig.surface.local_start import quadratic_basis
 
@@ -85,8 +86,6 @@ SUPPORT_SPACINGS = 5.0
 SUPPORT_POINTS = 4
 #: Points per vectorised block (bounds the memory: block x trials x neighbours x 9 floats, 0.1 GB).
 BLOCK_POINTS = 512
-#: Gaussian consistency of the median absolute residual.
-MAD_CONSISTENCY = 1.4826
 
 
 def local_quadratic_scores(points: np.ndarray, normals: np.ndarray, judged: np.ndarray, *,
@@ -232,5 +231,5 @@ def _trimmed_fits(basis: np.ndarray, h: np.ndarray, weight: np.ndarray, rng: np.
     g = np.einsum("mi,mij,mj->m", inverse[:, 0], np.einsum("mki,mk,mkj->mij", basis, w * w, basis), inverse[:, 0])
     leverage = np.einsum("mki,mij,mkj->mk", basis, inverse, basis) * w
     loo = np.abs(h - np.einsum("mki,mi->mk", basis, coef)) / np.clip(1.0 - leverage, 0.05, None)
-    misfit = MAD_CONSISTENCY * np.nanmedian(np.where(kept, loo, np.nan), axis=1)
+    misfit = MAD_TO_SIGMA * np.nanmedian(np.where(kept, loo, np.nan), axis=1)
     return coef, g, misfit, kept
