@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanrig.laser.image import ColourFrames
-from scanrig.laser.noise import MAD_TO_SIGMA, QUANTIZATION_SIGMA
+from scanrig.laser.noise import MAD_TO_SIGMA, QUANTIZATION_SIGMA, weighted_line
 
 #: Largest lag of the noise autocovariance, pixels: an 8-pixel JPEG block.
 MAX_LAG_PX = 8
@@ -168,8 +168,7 @@ def autocovariance(lines: np.ndarray, level: np.ndarray):
 
 
 def _variance_line(square: np.ndarray, level: np.ndarray) -> tuple[float, float]:
-    """Least-squares ``square ≈ offset + slope · level`` with ``slope ≥ 0``."""
-    x = level - level.mean()
-    sxx = float(np.dot(x, x))
-    slope = max(float(np.dot(x, square)) / sxx, 0.0) if sxx > 0 else 0.0
-    return float(square.mean() - slope * level.mean()), slope
+    """Least-squares ``square ≈ offset + slope · level`` with ``slope ≥ 0`` (in NumPy's own sums:
+    see :func:`~scanrig.laser.noise.weighted_line`)."""
+    value, slope, pivot, _ = weighted_line(level, square, np.ones_like(level))
+    return value - slope * pivot, slope

@@ -274,12 +274,12 @@ def fit_noise_model(rows: np.ndarray, high_pass: np.ndarray, dark: np.ndarray, c
     x, y = x.ravel(), y.ravel()
     if x.size < _PTC_MIN_SAMPLES:
         return None
-    line = _weighted_line(x, y, np.ones_like(x))
+    line = weighted_line(x, y, np.ones_like(x))
     floor = QUANTIZATION_SIGMA**2
     for _ in range(_PTC_ITERATIONS):
         var = np.maximum(line[0] + line[1] * (x - line[2]), floor)
         clipped = np.minimum(y, _PTC_CLIP**2 * var) / _clipped_square()
-        line = _weighted_line(x, clipped, 1.0 / var**2)
+        line = weighted_line(x, clipped, 1.0 / var**2)
     value, slope, pivot, spread = line
     # Few bright samples (one glint in a dark frame) leave the slope uncertain: take its upper
     # bound, so that the threshold errs on the side of no false candidates where it is unsure.
@@ -288,7 +288,7 @@ def fit_noise_model(rows: np.ndarray, high_pass: np.ndarray, dark: np.ndarray, c
     return NoiseModel(dark, weights, float(value - slope * pivot), float(slope))
 
 
-def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float]:
+def weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float]:
     """Weighted least-squares line ``y ≈ value + slope · (x − pivot)``, ``pivot`` the weighted mean
     of ``x`` and ``slope ≥ 0``: returns ``(value, slope, pivot, Σ w (x − pivot)²)``.
 
