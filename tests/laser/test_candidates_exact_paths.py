@@ -1,7 +1,8 @@
 """The fast paths of candidate finding give exactly what their plain formulations give.
 
-The clip mask compares integers, the correlated-noise median comes from a histogram, and a clipped
-run's ends from the first unclipped pixel: each is checked against the obvious computation, on
+The clip mask compares integers, the correlated-noise median comes from a histogram, a clipped
+run's ends from the first unclipped pixel, the clutter's quantiles from one sort, and the luma
+difference's noise line from NumPy's sums: each is checked against the obvious computation, on
 the inputs where a shortcut could slip (levels between integers, ties, runs at the frame's edge).
 """
 
@@ -9,7 +10,25 @@ import numpy as np
 import pytest
 
 from scanrig.laser.image import _clipped
-from scanrig.laser.noise import _HISTOGRAM_MAX, _middle_value, correlated_noise_factor, high_pass_bands
+from scanrig.laser.luma import _variance_line
+from scanrig.laser.noise import (
+    _CLUTTER_BINS,
+    _CLUTTER_CLIP,
+    _CLUTTER_MIN_MAXIMA,
+    _CLUTTER_QUANTILE,
+    _CLUTTER_RANK,
+    _CLUTTER_ROW_STEP,
+    _CLUTTER_SPAN,
+    _CLUTTER_WHITE,
+    _HISTOGRAM_MAX,
+    CLUTTER_MIN,
+    CLUTTER_REACH_PX,
+    NOISE_CELL,
+    _middle_value,
+    clutter_cells,
+    correlated_noise_factor,
+    high_pass_bands,
+)
 from scanrig.laser.stripe_candidates import _centre_of_saturated_run, leading_true
 
 
@@ -113,3 +132,62 @@ def test_clipped_runs_are_centred_up_to_the_frame_edge(transposed):
         # the seed itself counts on both sides
         assert centre[k] == pos[k] + (right - left) // 2
         assert run_half[k] == (right + 1 + left + 1) // 2
+
+
+def _plain_clutter(signal: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`clutter_cells` computed maximum by maximum and cell by cell, and the clip level (DN of
+    the box sum)."""
+    h, w = signal.shape
+    reach, hc, wc = CLUTTER_REACH_PX, noise.shape[0], noise.shape[1]
+    found = []  # (cell row, cell column, prominence)
+    for row in range(1, h - 1, _CLUTTER_ROW_STEP):
+        box = {x: float(signal[row - 1 : row + 2, x - 1 : x + 2].astype(np.float64).sum()) for x in range(1, w - 1)}
+        for x in range(reach + 1, w - reach - 1):
+            if box[x] >= box[x - 1] and box[x] > box[x + 1]:
+                left = min(box[x - k] for k in range(1, reach + 1))
+                right = min(box[x + k] for k in range(1, reach + 1))
+                found.append((row // NOISE_CELL, x // NOISE_CELL, max(box[x] - max(left, right), 0.0)))
+    prominence = np.array([p for _, _, p in found])
+    clip = _CLUTTER_CLIP * np.quantile(prominence, _CLUTTER_QUANTILE)
+    level = np.zeros((hc, wc))
+    for i in range(hc):
+        for j in range(wc):
+            values = np.sort([p for a, b, p in found if (a, b) == (i, j) and p <= clip])
+            if values.size >= _CLUTTER_MIN_MAXIMA:
+                level[i, j] = values[int(np.floor(_CLUTTER_QUANTILE * (values.size - 1)))]
+    level = level.astype(np.float32) / np.float32(3.0 * _CLUTTER_WHITE)  # in float32, as the detector
+    low = np.zeros_like(level)
+    r = _CLUTTER_SPAN // 2
+    for i in range(hc):
+        for j in range(wc):
+            around = [level[min(max(a, 0), hc - 1), min(max(b, 0), wc - 1)]
+                      for a in range(i - r, i + r + 1) for b in range(j - r, j + r + 1)]
+            low[i, j] = np.sort(around)[_CLUTTER_RANK]
+    return np.where(low >= CLUTTER_MIN * noise, low, np.float32(0.0)), clip
+
+
+@pytest.mark.parametrize("as_half_integers", [False, True])
+@pytest.mark.parametrize("scale", [1, 8])
+def test_clutter_cells_are_those_of_the_plain_computation(as_half_integers, scale):
+    """Histograms of the cells' maxima and a stacked partition over cells give each cell's quantile
+    and rank to within one of the ``_CLUTTER_BINS`` bins of the clip level (the bins' lower edges),
+    for 8-bit data and a colour difference's half-integers, small and large prominences."""
+    rng = np.random.default_rng(7)
+    values = _jpeg_like(rng, (200, 336)) * scale + rng.integers(0, 3, (200, 336)) + 40
+    signal = (values / 2.0).astype(np.float32) if as_half_integers else values.astype(np.uint8)
+    noise = np.full((4, 6), 1e-3, np.float32)  # far below the clutter: no cell near the noise's gate
+    noise[0, 0] = 500.0  # ... but this one, whose noise hides its clutter
+    fast, (plain, clip) = clutter_cells(signal, noise), _plain_clutter(signal, noise)
+    assert fast.any() and not fast[0, 0]
+    bin_width = clip / _CLUTTER_BINS / (3.0 * _CLUTTER_WHITE)
+    assert np.all((fast <= plain) & (fast >= plain - bin_width))
+
+
+def test_variance_line_is_the_least_squares_line():
+    """The luma difference's photon-transfer line from NumPy's sums is the least-squares line."""
+    rng = np.random.default_rng(8)
+    level = rng.uniform(0, 200, 5000)
+    square = 2.0 + 0.03 * level + rng.normal(0, 1, level.size) ** 2
+    slope, offset = np.polyfit(level, square, 1)
+    assert _variance_line(square, level) == pytest.approx((offset, slope), rel=1e-12)
+    assert _variance_line(5.0 - 0.01 * level, level) == pytest.approx((np.mean(5.0 - 0.01 * level), 0.0), rel=1e-12)

@@ -40,6 +40,7 @@ from scanrig.laser.noise import (
     CORRELATED_NOISE_MIN,
     NOISE_CELL,
     NoiseModel,
+    clutter_cells,
     correlated_noise_factor,
     effective_noise,
     fit_noise_model,
@@ -161,6 +162,23 @@ class LaserImage:
         if self.noise_model is not None:
             return self.noise_model.sigma_at(u, v)
         return cell_lookup(self.noise, NOISE_CELL, u, v)
+
+    @functools.cached_property
+    def clutter(self) -> np.ndarray:
+        """Structured clutter per ``NOISE_CELL`` pixel cell, DN (0 where there is none beyond the
+        noise): JPEG blocking and ringing of a colour difference, whose chroma JPEG stores at half
+        resolution, which a peak of a stripe must clear as it must clear the noise
+        (:func:`~scanrig.laser.noise.clutter_cells`). Measured once per frame, when asked; 0 for a
+        grey signal (luma keeps full resolution: its noise estimate sees its structure)."""
+        if self.colour is None:
+            return np.zeros_like(self.noise)
+        return clutter_cells(self.signal, self.noise)
+
+    def clutter_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """:attr:`clutter`, DN, at integer signal coordinates ``u``, ``v`` (same shape). A stripe's
+        peak is tested against the larger of it and :meth:`noise_at`; the fits' σ is
+        :meth:`noise_at` alone."""
+        return cell_lookup(self.clutter, NOISE_CELL, u, v)
 
     def noise_floor(self) -> float:
         """The lowest :meth:`noise_at` anywhere in the frame, DN: a test that needs more than a few

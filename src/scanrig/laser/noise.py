@@ -7,7 +7,8 @@ mostly dark pixels underestimates by far at a bright pixel (a glint of room ligh
 metal, the edge of a lit part). A cell-based threshold there let the dark frame's own noise,
 the same in every frame, pass as a faint spot at the same pixel frame after frame. Demosaicing
 and JPEG correlate the noise over a few pixels, which the box sums and fits see in full
-(:func:`correlated_noise_factor`).
+(:func:`correlated_noise_factor`). JPEG's blocking and ringing in a colour difference are a floor
+of their own for detection, not noise for the fits (:func:`clutter_cells`).
 """
 
 from __future__ import annotations
@@ -354,6 +355,114 @@ def _expected_clipped_abs() -> float:
 
     c = _NOISE_CLIP
     return float(np.sqrt(72.0) * (np.sqrt(2 / np.pi) * (1 - np.exp(-c * c / 2)) + c * erfc(c / np.sqrt(2))))
+
+
+#: Rows between the rows of box sums sampled for the clutter (:func:`clutter_cells`).
+_CLUTTER_ROW_STEP = 8
+#: Pixels searched on each side of a local maximum for its prominence: the stripes' default reach
+#: (3 × ``max_width_px`` + 1 at 3 px).
+CLUTTER_REACH_PX = 10
+#: Quantile of a cell's prominences taken as its clutter level.
+_CLUTTER_QUANTILE = 0.9
+#: That quantile for white Gaussian noise, in σ of the box sum, as :func:`clutter_cells` takes it
+#: (the histogram's bins and the low rank over cells included): measured so that six 1280 × 1024
+#: frames of unit-σ noise give a median cell of 1.00 DN (``tests/laser/test_clutter.py`` checks it).
+_CLUTTER_WHITE = 2.63
+#: Prominences above this many times the frame's quantile are signal, not clutter, and left out:
+#: a laser crossing a cell is its most prominent structure.
+_CLUTTER_CLIP = 4.0
+#: Below this many noise σ the clutter is taken as noise (on white noise it scatters about 1).
+CLUTTER_MIN = 1.25
+#: Fewest maxima for a cell's own quantile.
+_CLUTTER_MIN_MAXIMA = 8
+#: Most bins of the cells' histograms of prominence (see :func:`clutter_cells`).
+_CLUTTER_BINS = 128
+
+
+def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """Structured clutter per ``NOISE_CELL``-pixel cell, in noise-equivalent σ of a pixel, DN.
+
+    JPEG stores colour at half resolution in 8 × 8 blocks: on flat paper, where quantisation leaves
+    almost no pixel-scale noise (and :func:`estimate_noise` its floor), a colour difference holds
+    blocking and ringing bumps of a few DN, which rise above both flanks like a faint stripe. The
+    floor a stripe's peak must clear there is this structure, not the noise. It is measured as the
+    detectors see it: on every ``_CLUTTER_ROW_STEP``-th row, the prominence of each local maximum of
+    the 3 × 3 box sums along the row (its box sum minus the higher of the lowest within
+    ``CLUTTER_REACH_PX`` on either side, as :func:`~scanrig.laser.peaks.line_prominence`), those
+    above ``_CLUTTER_CLIP`` times the frame's ``_CLUTTER_QUANTILE`` quantile left out (signal). Per
+    cell (of at least ``_CLUTTER_MIN_MAXIMA`` maxima, else 0), their ``_CLUTTER_QUANTILE`` quantile
+    is divided by that quantile for white noise of σ 1 (``_CLUTTER_WHITE`` box-sum σ of 3 DN each),
+    and the ``_CLUTTER_RANK``-th lowest of the 5 × 5 cells around is taken: a laser raises the
+    cells it crosses (its own peaks, and the ringing JPEG leaves beside it), and two lasers close
+    together cross half of a 5 × 5 neighbourhood. On white noise the result is the noise σ within
+    a few per cent; cells where it is below ``CLUTTER_MIN`` times their ``noise`` are set to 0 (no
+    clutter beyond the noise).
+
+    Parameters
+    ----------
+    signal : (H, W) array, DN
+    noise : (ceil(H/cell), ceil(W/cell)) float32 array, DN
+        The noise cells (:func:`estimate_noise`).
+
+    Returns
+    -------
+    (ceil(H/cell), ceil(W/cell)) float32 array, DN
+        0 where there is no clutter beyond the noise, and in frames too small to measure it.
+    """
+    import cv2
+
+    hc, wc = noise.shape
+    reach = CLUTTER_REACH_PX
+    h, w = signal.shape
+    if w < 2 * reach + 5 or h < 3:
+        return np.zeros_like(noise)
+    rows = np.arange(1, h - 1, _CLUTTER_ROW_STEP)
+    work = {np.dtype(np.uint8): np.int16, np.dtype(np.uint16): np.int32}.get(signal.dtype, np.float32)  # exact
+    col3 = signal[rows - 1].astype(work) + signal[rows] + signal[rows + 1]
+    box = (col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]).astype(np.float32)  # columns 1 .. W-2
+    n = box.shape[1]
+    centre = box[:, reach : n - reach]  # columns reach + 1 .. W - reach - 2
+    is_max = (centre >= box[:, reach - 1 : n - reach - 1]) & (centre > box[:, reach + 1 : n - reach + 1])
+    lowest = cv2.erode(box, np.ones((1, reach), np.uint8), anchor=(0, 0))  # of x .. x + reach - 1
+    base = np.maximum(lowest[:, : n - 2 * reach], lowest[:, reach + 1 : n - reach + 1])
+    at = np.flatnonzero(is_max)  # flat: several times faster than the 2-D nonzero
+    band, col = np.divmod(at, is_max.shape[1])
+    if band.size == 0:
+        return np.zeros_like(noise)
+    prominence = np.maximum(centre.ravel()[at] - base.ravel()[at], 0.0).astype(np.float64)
+    clip = _CLUTTER_CLIP * np.quantile(prominence, _CLUTTER_QUANTILE)
+    cell = rows[band] // NOISE_CELL * wc + (col + reach + 1) // NOISE_CELL
+    clutter = prominence <= clip
+    prominence, cell = prominence[clutter], cell[clutter]
+    # each cell's quantile from its histogram, to within a bin of 1/_CLUTTER_BINS of the clip level
+    # (a sort of the maxima costs ten times more)
+    width = clip / _CLUTTER_BINS if clip > 0 else 1.0
+    bins = (prominence / width).astype(np.int64)
+    n_bins = int(bins.max()) + 1
+    cumulative = np.cumsum(np.bincount(cell * n_bins + bins, minlength=hc * wc * n_bins).reshape(hc * wc, n_bins),
+                           axis=1)
+    counts = cumulative[:, -1]
+    rank = np.floor(_CLUTTER_QUANTILE * (counts - 1))
+    level = np.where(counts >= _CLUTTER_MIN_MAXIMA, (cumulative <= rank[:, None]).sum(axis=1) * width, 0.0)
+    level = level.astype(np.float32)
+    cells = _low_rank_filter(level.reshape(hc, wc) / np.float32(3.0 * _CLUTTER_WHITE))
+    return np.where(cells >= CLUTTER_MIN * noise, cells, np.float32(0.0))
+
+
+#: Side of the neighbourhood of cells over which the clutter is taken, and the rank taken there
+#: (0 the lowest; see :func:`clutter_cells`).
+_CLUTTER_SPAN = 5
+_CLUTTER_RANK = 6
+
+
+def _low_rank_filter(cells: np.ndarray) -> np.ndarray:
+    """The ``_CLUTTER_RANK``-th lowest of each cell's ``_CLUTTER_SPAN`` × ``_CLUTTER_SPAN``
+    neighbourhood (the edge cells repeated beyond the map), ``(hc, wc)`` float32."""
+    r = _CLUTTER_SPAN // 2
+    padded = np.pad(cells, r, mode="edge")
+    hc, wc = cells.shape
+    stack = np.stack([padded[i : i + hc, j : j + wc] for i in range(_CLUTTER_SPAN) for j in range(_CLUTTER_SPAN)])
+    return np.partition(stack, _CLUTTER_RANK, axis=0)[_CLUTTER_RANK]
 
 
 def high_pass_bands(signal: np.ndarray):

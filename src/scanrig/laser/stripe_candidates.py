@@ -97,8 +97,9 @@ _MIN_RELATIVE_PROMINENCE = 0.25
 
 def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> LineCandidates:
     """Local maxima along rows or columns that pass the detection test, are not suppressed by a
-    stronger neighbour, rise above both flanks by ``k_detect`` noise σ of the box sum and by
-    ``_MIN_RELATIVE_PROMINENCE`` of their height, and in a colour frame rise in the laser's own
+    stronger neighbour, rise above both flanks by ``k_detect`` σ of the box sum (of the noise or,
+    where larger, of the frame's structured clutter, :attr:`~scanrig.laser.image.LaserImage.clutter`)
+    and by ``_MIN_RELATIVE_PROMINENCE`` of their height, and in a colour frame rise in the laser's own
     channel too (:func:`_seen_in_laser_channel`, asked first: the tests are independent, and on
     a textured frame it keeps one maximum in ten, so the rest runs on few)."""
     cand = find_candidates(li, along, excess, k_detect=k_detect)
@@ -133,7 +134,9 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
                                                box_sums() if li.box_sums_computed() else box_sums)
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
-    keep = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
+    # the detection test against the larger of the noise and the frame's structured clutter
+    detected = prominence_dn / (3.0 * np.maximum(noise, li.clutter_at(*uv))) >= k_detect
+    keep = detected & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
     return LineCandidates(line, pos, run_half, prominence, noise).take(keep)
 
 
