@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.laser.pixels import cells_shape, pixel_blocks
 
 #: Rows between the 3-row bands sampled for the noise estimate.
@@ -29,8 +30,6 @@ NOISE_CELL = 64
 #: In the local noise estimate, high-pass values beyond this many global σ are clipped, so that the
 #: laser trace itself inflates its cell only a little (and the 5 × 5 cell median removes the rest).
 _NOISE_CLIP = 3.0
-#: MAD -> standard deviation for Gaussian noise.
-MAD_TO_SIGMA = 1.4826
 #: Standard deviation of rounding to integers, DN.
 QUANTIZATION_SIGMA = 1.0 / np.sqrt(12.0)
 #: The photon-transfer fit of :func:`fit_noise_model`: clipped, reweighted iterations, the clip in
