@@ -37,6 +37,10 @@ class LineCandidates:
         :func:`~scanrig.laser.peaks.line_prominence` in noise σ of the box sum.
     noise : (n,) float array
         Noise σ at the candidate, DN.
+    maxima : (m,) int64 array, sorted
+        :func:`line_keys` of every local maximum on these lines that rises above the noise: the
+        candidates and those the clutter test rejected. Not fitted, they still bound the fit
+        windows of their neighbours (:func:`neighbour_gaps`). Shared by every :meth:`take`.
     """
 
     line: np.ndarray
@@ -44,9 +48,11 @@ class LineCandidates:
     run_half: np.ndarray
     prominence: np.ndarray
     noise: np.ndarray
+    maxima: np.ndarray
 
     def take(self, index) -> LineCandidates:
-        return LineCandidates(*(a[index] for a in (self.line, self.pos, self.run_half, self.prominence, self.noise)))
+        return LineCandidates(*(a[index] for a in (self.line, self.pos, self.run_half, self.prominence, self.noise)),
+                              self.maxima)
 
     def block_index(self, rows: bool) -> tuple[np.ndarray, np.ndarray]:
         """``(block row, block column)`` of each candidate (4 × 4 pixel blocks)."""
@@ -82,11 +88,48 @@ def crossed_steeply(cand: LineCandidates, by_rows: np.ndarray, rows: bool) -> np
 def _has_neighbour(cand: LineCandidates, reach_px: float, step: int) -> np.ndarray:
     """Whether each candidate has one on the line ``step`` away within ``reach_px`` along it
     (candidates sorted by line, then position)."""
-    key = cand.line.astype(np.int64) << 32 | cand.pos.astype(np.int64)
+    key = line_keys(cand.line, cand.pos)
     reach = int(np.floor(reach_px))
-    line = (cand.line.astype(np.int64) + step) << 32
+    line = (cand.line.astype(np.int64) + step) << _POS_BITS
     first = np.searchsorted(key, line | np.maximum(cand.pos - reach, 0))
     return (first < key.size) & (key[np.minimum(first, key.size - 1)] <= line | (cand.pos + reach))
+
+
+#: Bits of a :func:`line_keys` key that hold the position along the line.
+_POS_BITS = 32
+#: :func:`neighbour_gaps` where a line has no maximum on that side, px.
+NO_NEIGHBOUR_PX = 1 << 30
+
+
+def line_keys(line: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """One int64 key per ``(line, pos)`` (non-negative ints, pixels) that sorts by line, then
+    position, ``(n,)``."""
+    return line.astype(np.int64) << _POS_BITS | pos.astype(np.int64)
+
+
+def neighbour_gaps(line: np.ndarray, pos: np.ndarray, maxima: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance from each ``(line, pos)`` to the nearest of ``maxima`` before it and after it on
+    its line, pixels (``NO_NEIGHBOUR_PX`` where there is none; a maximum at ``pos`` itself is
+    neither).
+
+    Parameters
+    ----------
+    line, pos : (n,) int arrays, pixels
+    maxima : (m,) int64 array
+        Sorted :func:`line_keys`.
+
+    Returns
+    -------
+    before, after : (n,) int64 arrays, pixels
+    """
+    bounds = np.r_[np.int64(-1), maxima, np.iinfo(np.int64).max]  # sentinels on no line
+    key = line_keys(line, pos)
+    prev = bounds[np.searchsorted(bounds, key, "left") - 1]
+    succ = bounds[np.searchsorted(bounds, key, "right")]
+    on_pos = (1 << _POS_BITS) - 1
+    before = np.where(prev >> _POS_BITS == line, pos - (prev & on_pos), NO_NEIGHBOUR_PX)
+    after = np.where(succ >> _POS_BITS == line, (succ & on_pos) - pos, NO_NEIGHBOUR_PX)
+    return before, after
 
 
 #: A peak must rise above its higher flank by at least this fraction of its height above the local
@@ -101,7 +144,8 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
     where larger, of the frame's structured clutter, :attr:`~scanrig.laser.image.LaserImage.clutter`)
     and by ``_MIN_RELATIVE_PROMINENCE`` of their height, and in a colour frame rise in the laser's own
     channel too (:func:`_seen_in_laser_channel`, asked first: the tests are independent, and on
-    a textured frame it keeps one maximum in ten, so the rest runs on few)."""
+    a textured frame it keeps one maximum in ten, so the rest runs on few). Those that pass all
+    but the clutter test are kept as :attr:`LineCandidates.maxima` with the candidates."""
     cand = find_candidates(li, along, excess, k_detect=k_detect)
     rows = along == "rows"
     line, pos, score = (cand.v, cand.u, cand.score) if rows else (cand.u, cand.v, cand.score)
@@ -134,10 +178,12 @@ def prominent(li, along, excess, k_detect, min_separation_px, max_width_px) -> L
                                                box_sums() if li.box_sums_computed() else box_sums)
     height_dn -= 9.0 * li.background_at(*uv)
     prominence = prominence_dn / (3.0 * noise)
-    # the detection test against the larger of the noise and the frame's structured clutter
-    detected = prominence_dn / (3.0 * np.maximum(noise, li.clutter_at(*uv))) >= k_detect
-    keep = detected & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
-    return LineCandidates(line, pos, run_half, prominence, noise).take(keep)
+    above_noise = (prominence >= k_detect) & (prominence_dn >= _MIN_RELATIVE_PROMINENCE * height_dn)
+    # the detection test against the larger of the noise and the frame's structured clutter; the
+    # maxima it rejects still bound their neighbours' fit windows
+    keep = above_noise & (prominence_dn / (3.0 * np.maximum(noise, li.clutter_at(*uv))) >= k_detect)
+    maxima = np.sort(line_keys(line[above_noise], pos[above_noise]))
+    return LineCandidates(line, pos, run_half, prominence, noise, maxima).take(keep)
 
 
 def _seen_in_laser_channel(colour, rows, line, pos, clipped, reach, k_detect) -> np.ndarray:

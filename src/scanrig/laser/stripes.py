@@ -25,7 +25,13 @@ from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_
 from scanrig.laser.image import prepare_image
 from scanrig.laser.luma import luma_difference
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
-from scanrig.laser.stripe_candidates import LineCandidates, crossed_steeply, prominent, strongest_per_line
+from scanrig.laser.stripe_candidates import (
+    LineCandidates,
+    crossed_steeply,
+    neighbour_gaps,
+    prominent,
+    strongest_per_line,
+)
 from scanrig.laser.traces import empty_table, make_table
 
 DIRECTIONS = ("auto", "rows", "columns")
@@ -164,8 +170,8 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.nd
             parts.append(_fit_luma(li, rows, saturated, plain, max_width_px))
         else:
             uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-            parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, li.background_at(*uv), plain.noise,
-                                    max_width_px, plain.prominence))
+            parts.append(_fit_lines(signal, saturated, plain.line, plain.pos, plain.maxima, li.background_at(*uv),
+                                    plain.noise, max_width_px, plain.prominence))
     cols = {k: np.concatenate([part[k] for part in parts]) for k in parts[0]}
     keep = distinct_peaks(cols["line"], cols["centre"], cols["var"])
     cols = {k: a[keep] for k, a in cols.items()}
@@ -223,15 +229,17 @@ def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> dict[
     it is dropped (on the rendered colour set 90 of 706 candidates per frame, none on the beam)."""
     luma = luma_difference(li.colour)
     uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
-    return _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos,
+    return _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos, plain.maxima,
                       np.zeros(plain.line.size), luma.sigma_at(*uv), max_width_px, plain.prominence,
                       luma.correlation(rows), luma.shot_slope(li.colour.laser_channel))
 
 
-def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, prominence,
+def _fit_lines(signal, saturated, line, pos, maxima, background, noise, max_width_px, prominence,
                correlation=None, shot_slope=None) -> dict[str, np.ndarray]:
-    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``); failed fits dropped.
-    The windows are stacked candidate-minor,
+    """Fit every (line, pos) candidate along its line (axis 1 of ``signal``), each window cut
+    halfway to the nearest local maxima on its line, ``maxima`` (sorted
+    :func:`~scanrig.laser.stripe_candidates.line_keys`, the candidates among them); failed fits
+    dropped. The windows are stacked candidate-minor,
     ``(W, n)`` (see :mod:`scanrig.laser.fit`); the noise is white unless its ``correlation`` along
     the line is given (:func:`~scanrig.laser.fit.parameter_covariance`)."""
     half = int(np.ceil(3.0 * max_width_px))
@@ -241,7 +249,7 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, pr
     inside = (idx >= 0) & (idx < n_pos)
     np.clip(idx, 0, n_pos - 1, out=idx)
     y = signal[line, idx].astype(np.float64)
-    mask = inside & _nearest_on_line(line, pos, offs)
+    mask = inside & _nearest_on_line(line, pos, maxima, offs)
     sat = None if saturated is None else saturated[line, idx]
     if sat is not None:
         mask &= ~sat
@@ -261,18 +269,14 @@ def _fit_lines(signal, saturated, line, pos, background, noise, max_width_px, pr
     return {k: a[ok] for k, a in out.items()}
 
 
-def _nearest_on_line(line, pos, offs) -> np.ndarray:
-    """(W, n) True where a window pixel is nearer its own peak than the neighbouring peaks on the
-    same line (candidates sorted by line, then position)."""
-    if line.size == 0:
-        return np.ones((offs.size, 0), bool)
-    big = 10 * offs.size
-    same_prev = np.r_[False, line[1:] == line[:-1]]
-    same_next = np.r_[line[1:] == line[:-1], False]
-    gap_prev = np.where(same_prev, np.r_[big, pos[1:] - pos[:-1]], big)
-    gap_next = np.where(same_next, np.r_[pos[1:] - pos[:-1], big], big)
+def _nearest_on_line(line, pos, maxima, offs) -> np.ndarray:
+    """(W, n) True where a window pixel at ``offs`` from its peak ``(line, pos)`` is nearer it
+    than the neighbouring local maxima on the same line, ``maxima`` (sorted
+    :func:`~scanrig.laser.stripe_candidates.line_keys`): texture peaks the detection test
+    rejected still bound a fit beside them, which does not model them."""
+    before, after = neighbour_gaps(line, pos, maxima)
     twice = 2 * offs[:, None]
-    return (twice > -gap_prev) & (twice < gap_next)
+    return (twice > -before) & (twice < after)
 
 
 #: Widths tried for the start of a fit whose core is clipped, pixels.
