@@ -91,3 +91,26 @@ def test_rank0_follows_the_whitened_beam(seed):
     found[line[best]] = u[best]
     rows = np.flatnonzero(whitened.any(axis=1))
     assert np.all(np.abs(found[rows] - centre[rows]) <= HALF_STEP_PX)
+
+
+def test_a_laser_of_another_colour_is_not_whitened():
+    """The red frames read as a green laser's: where red clips (outside the rows the camera turns
+    white) red rises far past half of green's rise, but blue barely does (its crosstalk); a
+    whitened pixel has every other channel risen, so none is found there."""
+    on, off, _, _ = frames(0)
+    px = unknown_laser(prepare_image(on, "green", off, None, None, None))
+    outside = (px.v < WHITENED_ROWS.start) | (px.v >= WHITENED_ROWS.stop)
+    assert not outside.any()
+
+
+def test_a_run_edge_is_known_to_its_pixel_at_worst():
+    """On the Ciclop board's glint rows some runs end against a step that barely falls (two runs on
+    one row, a clipped neighbour): their σ is bounded by the run's own ends, each within one pixel,
+    not blown up by the flat step (it was 1e19 px on two rows)."""
+    from tests.laser import ciclop_board
+
+    on, off = ciclop_board.frames()
+    fits = fit_unknown_runs(prepare_image(on, "red", off, None, None, None), True)
+    assert fits is not None and fits["line"].size >= 60
+    worst_var = 0.25 * 2 / 12 + BAYER_PERIOD_PX**2 / 12
+    assert np.all(fits["var"] <= worst_var + 1e-12)

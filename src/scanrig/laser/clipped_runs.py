@@ -9,7 +9,7 @@ the laser's colour. In all these pixels the laser channel is unknown, never zero
 rise of the two other channels (laser-on minus laser-off) holds the beam.
 
 The laser channel counts as unknown at a pixel where it is clipped in either frame, or where the
-other channels rise by more than ``MAX_CROSSTALK_SHARE`` of its own rise (colour filters pass a few
+other channels each rise by more than ``MAX_CROSSTALK_SHARE`` of its own rise (colour filters pass a few
 per cent of a laser's light into the other channels, never half of it). Each run of such pixels
 along a scan line on which the other channels rise well above their noise is one more candidate,
 centred on the midpoint of the run's edges in the other channels (:func:`fit_unknown_runs`). A
@@ -42,6 +42,8 @@ MIN_RISE_SHARE = 0.2
 RISE_SIGMAS = 6.0
 #: Distance between two photosites of one colour of a Bayer mosaic along a row or column, px.
 BAYER_PERIOD_PX = 2.0
+#: Variance of a position known only to lie within one pixel (uniform), px².
+_PIXEL_VAR = 1.0 / 12.0
 #: Runs longer than this along a scan line follow a stripe lengthwise, px (as a clipped run's
 #: reach, :mod:`scanrig.laser.stripe_candidates`).
 MAX_RUN_PX = 65
@@ -91,7 +93,8 @@ def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
 
     Each run's centre is the midpoint of its two edges, where the other channels' mean rise
     crosses half its mean over the run, interpolated linearly between the run's end pixel and the
-    one beyond (as :func:`scanrig.laser.colour_fit.plateau_midpoint` does for the laser channel).
+    one beyond (the run ends within that step, so an edge's variance is at most a uniform pixel's,
+    1/12 px², however flat the step) (as :func:`scanrig.laser.colour_fit.plateau_midpoint` does for the laser channel).
     An edge's variance propagates the other channels' noise through the interpolation; the
     centre's adds ``BAYER_PERIOD_PX² / 12``: the camera whitens the pixels around the laser
     channel's saturated photosites, which lie ``BAYER_PERIOD_PX`` apart, so the run is centred on
@@ -133,7 +136,9 @@ def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
     for outer, inner, end, sign in ((rise[0], rise[1], first, -1), (rise[3], rise[2], last, 1)):
         step = np.maximum(inner - outer, 1e-9)
         edges.append(end + sign * np.clip((inner - level) / step, 0.0, 1.0))
-        var += sigma**2 * ((level - outer) ** 2 + (inner - level) ** 2) / step**4
+        # the run ends there, so its edge lies within that pixel step whatever the noise: at most
+        # the variance of a uniform pixel
+        var += np.minimum(sigma**2 * ((level - outer) ** 2 + (inner - level) ** 2) / step**4, _PIXEL_VAR)
     middle = runs.first + (runs.length - 1) // 2
     v, u = (runs.line, middle) if rows else (middle, runs.line)
     peak = colour.clip_level[k] - colour.dark[v, u, k]
@@ -155,9 +160,9 @@ def _unknown_of(li) -> UnknownPixels:
 
 
 def unknown_laser(li) -> UnknownPixels:
-    """Pixels where the laser channel is unknown and the other channels' mean rise (laser-on minus
-    laser-off, both usable in both frames) exceeds ``MIN_RISE_SHARE`` of the laser channel's clip
-    level and ``RISE_SIGMAS`` of the laser signal's noise σ in its cell
+    """Pixels where the laser channel is unknown and each other channel's rise (laser-on minus
+    laser-off, usable in both frames) exceeds ``MIN_RISE_SHARE`` of the laser channel's clip level
+    and ``RISE_SIGMAS`` of the laser signal's noise σ in its cell
     (:attr:`scanrig.laser.image.LaserImage.noise`).
 
     The whitened pixels are searched on the whole frame with the planes the detector has built:
@@ -203,19 +208,23 @@ class _Checked(NamedTuple):
 
 def _checked(li, v: np.ndarray, u: np.ndarray, floor: float) -> _Checked:
     """Which of the pixels ``v, u`` have the laser channel unknown (clipped in either frame, or
-    whitened) and the other channels usable and risen above ``floor`` and ``RISE_SIGMAS`` of the
-    noise; their rise (DN) and whether whitened (not clipped)."""
+    whitened) and the other channels usable and each risen above ``floor`` and ``RISE_SIGMAS`` of
+    the noise (a camera whitens a saturated pixel; light of a third colour raises one channel only);
+    their mean rise (DN) and whether whitened (not clipped)."""
     colour = li.colour
     k = colour.laser_channel
     others = [c for c in range(3) if c != k]
     px_on, px_off = colour.image[v, u].astype(np.float64), colour.dark[v, u]
-    rise = (px_on[:, others] - px_off[:, others]).mean(axis=1)
+    each = px_on[:, others] - px_off[:, others]
+    rise = each.mean(axis=1)
+    # a pixel turned white has every other channel risen: a light of another colour raises one
+    least = each.min(axis=1)
     clip = colour.clip_level
     usable = np.all((px_on[:, others] < clip[others]) & (px_off[:, others] < clip[others]), axis=1)
     clipped = (px_on[:, k] >= clip[k]) | (px_off[:, k] >= clip[k])
-    whitened = ~clipped & (rise > MAX_CROSSTALK_SHARE * (px_on[:, k] - px_off[:, k]))
-    keep = (usable & (clipped | whitened) & (rise > floor)
-            & (rise > RISE_SIGMAS * cell_lookup(li.noise, NOISE_CELL, u, v)))
+    whitened = ~clipped & (least > MAX_CROSSTALK_SHARE * (px_on[:, k] - px_off[:, k]))
+    keep = (usable & (clipped | whitened) & (least > floor)
+            & (least > RISE_SIGMAS * cell_lookup(li.noise, NOISE_CELL, u, v)))
     return _Checked(keep, rise[keep], whitened[keep])
 
 
