@@ -86,17 +86,16 @@ class Runs(NamedTuple):
     level: np.ndarray
 
 
-def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
+def fit_unknown_runs(li, rows: bool, pixels: UnknownPixels | None = None) -> dict[str, np.ndarray] | None:
     """Centres on the runs along one scan direction where the laser channel is unknown, in the
     columns of :func:`scanrig.laser.stripes.detect_stripe`'s fits; None without a laser-off frame
     or such runs.
 
     Each run's centre is the midpoint of its two edges, where the other channels' mean rise
     crosses half its mean over the run, interpolated linearly between the run's end pixel and the
-    one beyond (the run ends within that step, so an edge's variance is at most a uniform pixel's,
-    1/12 px², however flat the step) (as :func:`scanrig.laser.colour_fit.plateau_midpoint` does for the laser channel).
-    An edge's variance propagates the other channels' noise through the interpolation; the
-    centre's adds ``BAYER_PERIOD_PX² / 12``: the camera whitens the pixels around the laser
+    one beyond (as :func:`scanrig.laser.colour_fit.plateau_midpoint` does for the laser channel).
+    An edge's variance propagates the other channels' noise through the interpolation, at most a
+    uniform pixel's, 1/12 px², however flat the step (the run ends within it); the centre's adds ``BAYER_PERIOD_PX² / 12``: the camera whitens the pixels around the laser
     channel's saturated photosites, which lie ``BAYER_PERIOD_PX`` apart, so the run is centred on
     the photosite nearest the beam (on the Ciclop board's glint rows every run, 3, 5 or 7 px wide,
     is centred on one column while the beam moves by 0.2 px). ``peak`` is the laser channel's clip level less its laser-off value at the run's
@@ -110,6 +109,8 @@ def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
         The prepared frame (:func:`scanrig.laser.image.prepare_image`).
     rows : bool
         Scan lines are rows (else columns).
+    pixels : UnknownPixels, optional
+        :func:`unknown_laser` of ``li``, which the two scan directions share; found when omitted.
 
     Returns
     -------
@@ -120,7 +121,7 @@ def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
     colour = li.colour
     if colour is None or colour.dark is None:
         return None
-    runs = unknown_runs(_unknown_of(li), rows)
+    runs = unknown_runs(unknown_laser(li) if pixels is None else pixels, rows)
     if runs.line.size == 0:
         return None
     k = colour.laser_channel
@@ -147,16 +148,6 @@ def fit_unknown_runs(li, rows: bool) -> dict[str, np.ndarray] | None:
     return {"line": runs.line, "centre": 0.5 * (edges[0] + edges[1]), "var": var, "sigma_px": np.sqrt(var),
             "peak": peak, "width_px": 0.5 * (edges[1] - edges[0]), "snr": peak / colour.laser_noise,
             "saturated": np.ones(runs.line.size, bool), "prominence": prominence}
-
-
-#: The last frame's unknown pixels: its rows and columns share them.
-_MEMO: dict = {"colour": None, "pixels": None}
-
-
-def _unknown_of(li) -> UnknownPixels:
-    if _MEMO["colour"] is not li.colour:
-        _MEMO.update(colour=li.colour, pixels=unknown_laser(li))
-    return _MEMO["pixels"]
 
 
 def unknown_laser(li) -> UnknownPixels:

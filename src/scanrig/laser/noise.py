@@ -409,6 +409,7 @@ def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
         0 where there is no clutter beyond the noise, and in frames too small to measure it.
     """
     import cv2
+    from scipy.ndimage import rank_filter
 
     hc, wc = noise.shape
     reach = CLUTTER_REACH_PX
@@ -444,7 +445,9 @@ def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
     rank = np.floor(_CLUTTER_QUANTILE * (counts - 1))
     level = np.where(counts >= _CLUTTER_MIN_MAXIMA, (cumulative <= rank[:, None]).sum(axis=1) * width, 0.0)
     level = level.astype(np.float32)
-    cells = _low_rank_filter(level.reshape(hc, wc) / np.float32(3.0 * _CLUTTER_WHITE))
+    # the _CLUTTER_RANK-th lowest of each 5 × 5 neighbourhood, the edge cells repeated beyond the map
+    cells = rank_filter(level.reshape(hc, wc) / np.float32(3.0 * _CLUTTER_WHITE), rank=_CLUTTER_RANK,
+                        size=_CLUTTER_SPAN, mode="nearest")
     return np.where(cells >= CLUTTER_MIN * noise, cells, np.float32(0.0))
 
 
@@ -452,16 +455,6 @@ def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
 #: (0 the lowest; see :func:`clutter_cells`).
 _CLUTTER_SPAN = 5
 _CLUTTER_RANK = 6
-
-
-def _low_rank_filter(cells: np.ndarray) -> np.ndarray:
-    """The ``_CLUTTER_RANK``-th lowest of each cell's ``_CLUTTER_SPAN`` × ``_CLUTTER_SPAN``
-    neighbourhood (the edge cells repeated beyond the map), ``(hc, wc)`` float32."""
-    r = _CLUTTER_SPAN // 2
-    padded = np.pad(cells, r, mode="edge")
-    hc, wc = cells.shape
-    stack = np.stack([padded[i : i + hc, j : j + wc] for i in range(_CLUTTER_SPAN) for j in range(_CLUTTER_SPAN)])
-    return np.partition(stack, _CLUTTER_RANK, axis=0)[_CLUTTER_RANK]
 
 
 def high_pass_bands(signal: np.ndarray):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.errors import InputError
-from scanrig.laser.clipped_runs import fit_unknown_runs
+from scanrig.laser.clipped_runs import fit_unknown_runs, unknown_laser
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_1d, parameter_covariance
@@ -118,7 +118,10 @@ def detect_stripe(
         found = _crossings(li, excess, k_detect, min_separation_px, max_width_px)
     else:
         found = {direction: prominent(li, direction, excess, k_detect, min_separation_px, max_width_px)}
-    parts = [_fit_along(li, along, c.take(strongest_per_line(c.line, c.prominence, max_per_line)), max_width_px)
+    # where the laser channel is unknown (needs a laser-off frame): found once, fitted per direction
+    unknown = unknown_laser(li) if li.colour is not None and li.colour.dark is not None else None
+    parts = [_fit_along(li, along, c.take(strongest_per_line(c.line, c.prominence, max_per_line)), max_width_px,
+                        unknown)
              for along, c in found.items()]
     parts = [p for p in parts if p is not None]
     if not parts:
@@ -137,10 +140,11 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
     return {along: c.take(crossed_steeply(c, by_rows, along == "rows")) for along, c in found.items()}
 
 
-def _fit_along(li, along, cand: LineCandidates, max_width_px) -> dict[str, np.ndarray] | None:
-    """Sub-pixel centres of the candidates of one scan direction (full-frame columns of the traces
-    table, ranked by continuity); None when there are none."""
-    unknown = fit_unknown_runs(li, along == "rows")  # where the laser channel is unknown
+def _fit_along(li, along, cand: LineCandidates, max_width_px, unknown_pixels) -> dict[str, np.ndarray] | None:
+    """Sub-pixel centres of the candidates of one scan direction and of the runs of
+    ``unknown_pixels`` along it (:mod:`scanrig.laser.clipped_runs`; None without a laser-off frame),
+    as full-frame columns of the traces table, ranked by continuity; None when there are none."""
+    unknown = None if unknown_pixels is None else fit_unknown_runs(li, along == "rows", unknown_pixels)
     if cand.line.size == 0 and unknown is None:
         return None
     rows = along == "rows"
