@@ -200,8 +200,13 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     half = w // 2
     unclipped = raw < clip
     v = np.where(unclipped, raw, clip).astype(np.float64)
-    with np.errstate(all="ignore"):  # an all-clipped window has no background: NaN, never applies
-        background = np.nanmedian(np.where(unclipped, v, np.nan), axis=1)
+    # the clipped pixels sort after every unclipped one, so the unclipped pixels' median is that of
+    # the first `count` sorted (np.nanmedian takes ten times longer); an all-clipped window has no
+    # background: NaN, never applies
+    count = unclipped.sum(axis=1)
+    middle = np.maximum(np.stack([(count - 1) // 2, count // 2], axis=1), 0)
+    background = np.take_along_axis(np.sort(raw, axis=1), middle, axis=1).mean(axis=1)
+    background[count == 0] = np.nan
     level = 0.5 * (background + clip)
     bright = v >= level[:, None]
     right = np.cumprod(bright[:, half:], axis=1).sum(axis=1)  # run pixels from the middle on, with it
