@@ -480,18 +480,30 @@ def _prominence_from_windows(signal, line, pos, reach, box=None) -> tuple[np.nda
 
 
 def _windows_batch(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_prominence_from_windows` of one batch, in windows as wide as its longest reach."""
+    """:func:`_prominence_from_windows` of one batch, in windows as wide as its longest reach,
+    stacked candidate-minor (each step, and each lowest over a flank, runs over all candidates at
+    once rather than over many short rows)."""
+    import cv2
+
     far = int(reach.max())
-    if box is not None:  # (n, 2 far + 1): offsets -far .. far (box has the ring: positions + 1)
-        window = pixel_blocks(box, line + 1, pos + 1 - far, 1, 2 * far + 1)[:, 0]
+    n = line.size
+    if box is not None:  # (2 far + 1, n): offsets -far .. far (box has the ring: positions + 1)
+        window = cv2.transpose(pixel_blocks(box, line + 1, pos + 1 - far, 1, 2 * far + 1).reshape(n, -1))
+        window = window.astype(np.float32, copy=False)
     else:
-        col3 = pixel_blocks(signal, line - 1, pos - far - 1, 3, 2 * far + 3).astype(np.float32).sum(axis=1)
-        window = col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]
-    beyond = np.abs(np.arange(-far, far + 1))[None, :] > reach[:, None]
-    masked = np.where(beyond, np.float32(np.inf), window)
-    left = masked[:, :far].min(axis=1)
-    right = masked[:, far + 1 :].min(axis=1)
-    return window[:, far] - np.maximum(left, right), window[:, far]
+        rows = cv2.transpose(pixel_blocks(signal, line - 1, pos - far - 1, 3, 2 * far + 3).reshape(n, -1))
+        rows = rows.reshape(3, 2 * far + 3, n)
+        col3 = rows[0].astype(np.float32)
+        col3 += rows[1]
+        col3 += rows[2]
+        window = col3[:-2] + col3[1:-1]
+        window += col3[2:]
+    masked = window
+    if reach.min() < far:
+        masked = np.where(np.abs(np.arange(-far, far + 1))[:, None] > reach, np.float32(np.inf), window)
+    left = masked[:far].min(axis=0)
+    right = masked[far + 1 :].min(axis=0)
+    return window[far] - np.maximum(left, right), window[far]
 
 
 def _prominence_from_table(signal, line, pos, reach, box) -> tuple[np.ndarray, np.ndarray]:

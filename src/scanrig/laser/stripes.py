@@ -135,6 +135,8 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
     (:func:`~scanrig.laser.stripe_candidates.crossed_steeply`)."""
     found = {along: prominent(li, along, np.where(blocks, excess, -1.0), k_detect, min_separation_px, max_width_px)
              for along, blocks in zip(("rows", "columns"), worth_scanning(excess))}
+    if min(c.line.size for c in found.values()) == 0:  # one direction only: every block is its
+        return found
     by_rows = direction_map(found["rows"].block_weights(True, excess.shape),
                             found["columns"].block_weights(False, excess.shape))
     return {along: c.take(crossed_steeply(c, by_rows, along == "rows")) for along, c in found.items()}
