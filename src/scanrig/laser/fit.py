@@ -25,7 +25,8 @@ batch too small to repay its fixed cost of order P³ NumPy calls, by LAPACK.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import erf
@@ -216,17 +217,49 @@ class FitResult:
         Fitted pixels minus parameters.
     jac : (n, M, P) float array
         Jacobian at the solution, zero on pixels outside the mask (a transposed view of the
-        candidate-minor ``(P, M, n)`` array the fit works on).
+        candidate-minor ``(P, M, n)`` array the fit works on); evaluated when first asked for.
     residuals : (n, M) float array, DN
-        Data minus model, zero outside the mask (a view of an ``(M, n)`` array).
+        Data minus model, zero outside the mask (a view of an ``(M, n)`` array); evaluated with
+        ``jac``.
+    model, y, weights
+        The candidate-minor model, data ``(M, n)`` and mask as 0/1 floats (None: every pixel
+        fitted) of the fit, which ``jac`` and ``residuals`` are evaluated from.
+
+    Methods
+    -------
+    minor(index)
+        Residuals ``(M, k)`` and Jacobian ``(P, M, k)`` of some candidates, candidate-minor: what
+        needs them for a few (a sample, the misfits) does not evaluate all.
     """
 
     params: np.ndarray
     info_inv: np.ndarray
     chi2_unit: np.ndarray
     dof: np.ndarray
-    jac: np.ndarray
-    residuals: np.ndarray
+    model: Callable = field(repr=False)
+    y: np.ndarray = field(repr=False)
+    weights: np.ndarray | None = field(repr=False)
+
+    def minor(self, index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(M, k)`` (DN) and Jacobian ``(P, M, k)`` at the solution of the candidates
+        ``index`` (all when None), zero outside the mask, candidate-minor; new arrays."""
+        p, y, w = self.params.T, self.y, self.weights
+        if index is not None:
+            p, y = p[:, index], y[:, index]
+            w = None if w is None else w[:, index]
+        return _evaluate(self.model, p, y, w)
+
+    @functools.cached_property
+    def _at_solution(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.minor()
+
+    @property
+    def jac(self) -> np.ndarray:
+        return self._at_solution[1].transpose(2, 1, 0)
+
+    @property
+    def residuals(self) -> np.ndarray:
+        return self._at_solution[0].T
 
 
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
@@ -299,7 +332,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     ``JᵀJ``, ``Jᵀr`` (``P² + P`` numbers), not its Jacobian and residuals: the working set is
     compacted as candidates leave it without copying ``(P, M, n)`` arrays, and the Jacobian and
     residuals of the result are evaluated once, at the solution (moving them out of the working set
-    costs about as much); ``(JᵀJ)⁻¹`` is that of the carried normal equations.
+    costs about as much), and only when asked for (:class:`FitResult`); ``(JᵀJ)⁻¹`` is that of the
+    carried normal equations.
     """
     if not minor:
         user_model = model
@@ -368,8 +402,7 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
             for kept, tried in ((pa, p_try), (cost, cost_try), (hess, hess_try), (grad, grad_try)):
                 np.copyto(kept, tried, where=accepted)
     p, cost, hess = _in_order(stopped, n)
-    r, jac = _evaluate(model, p, y, w)
-    return FitResult(p.T, _spd_inverse(hess), cost, dof, jac.transpose(2, 1, 0), r.T)
+    return FitResult(p.T, _spd_inverse(hess), cost, dof, model, y, w)
 
 
 def _in_order(groups: list, n: int) -> list[np.ndarray]:
@@ -576,7 +609,7 @@ MISFIT_LEVEL = 0.999
 
 
 def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, pixel_var: np.ndarray,
-                  dof: np.ndarray, centre: tuple[int, ...], clusters: np.ndarray | None = None) -> np.ndarray:
+                  dof: np.ndarray, centre: tuple[int, ...]) -> np.ndarray:
     """Variance inflation of the centre where the model does not explain the window.
 
     With the noise model right, χ²/dof of a window scatters around 1 and the covariance is right
@@ -587,14 +620,7 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     flanks does. Such windows get the sandwich ratio ``Σ a_i² r_i² / Σ a_i² v_i`` (residuals
     ``r``, modelled pixel variances ``v``): what the residuals say about the centre's variance over
     what the noise model says (at least 1). Scaling by the whole window's χ²/dof instead overstated
-    the σ of stripes beside printed edges three-fold. Where neighbouring pixels' errors are
-    correlated (demosaicing, subsampled chroma), ``clusters`` groups them and the numerator is the
-    cluster-robust ``Σ_c (Σ_{i∈c} a_i r_i)²``: errors that move together count as they add up.
-    Its denominator is then what that sum would be for independent whitened pixels,
-    ``Σ a_i² − Σ_c u_cᵀ (JᵀJ)⁻¹ u_c`` with ``u_c = Σ_{i∈c} a_i J_i``: the residuals are orthogonal to
-    ``a`` (``Σ a_i r_i = 0``), so the clusters' sums fall short of ``Σ a_i²`` by their leverage,
-    which is large where a few clusters carry the centre. With ``clusters`` every window gets the
-    ratio, as correlated noise does not show in χ².
+    the σ of stripes beside printed edges three-fold.
 
     Parameters
     ----------
@@ -610,9 +636,6 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     centre : tuple of int
         Indices of the centre's parameters (one for a stripe, two for a spot); their ratios are
         averaged.
-    clusters : (M, n) int array, optional
-        Label of each pixel's group of correlated pixels within its window, from 0 (default: every
-        pixel its own); for whitened windows only (``pixel_var`` 1 where fitted, 0 elsewhere).
 
     Returns
     -------
@@ -623,34 +646,16 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     with np.errstate(divide="ignore", invalid="ignore"):
         chi2 = np.where(pixel_var > 0, residuals**2 / pixel_var, 0.0).sum(axis=0)
     table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
-    misfit = (chi2 / dof > _misfit_limits(table_size)[dof - 1]) | (clusters is not None)
+    misfit = chi2 / dof > _misfit_limits(table_size)[dof - 1]
     factor = np.ones(dof.size)
     if misfit.any():
         a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
-        ar = a * residuals[:, misfit]
-        expected = np.einsum("kmn,mn->kn", a * a, pixel_var[:, misfit])
-        if clusters is None:
-            spread = np.einsum("kmn,kmn->kn", ar, ar)
-        else:
-            labels = clusters[:, misfit]
-            spread = (_cluster_sums(ar, labels) ** 2).sum(axis=-1)
-            lever = _cluster_sums(jac[None, :, :, misfit] * a[:, None], labels)  # u_c, (K, P, m, L)
-            expected -= np.einsum("kpnl,npq,kqnl->kn", lever, info_inv[misfit], lever)
+        a2 = a * a
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = (spread / expected).mean(axis=0)
+            ratio = (np.einsum("kmn,mn->kn", a2, residuals[:, misfit] ** 2)
+                     / np.einsum("kmn,mn->kn", a2, pixel_var[:, misfit])).mean(axis=0)
         factor[misfit] = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
     return factor
-
-
-def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Sums of ``values (..., M, n)`` over the pixels of each cluster of ``labels (M, n)`` (ints
-    from 0, per window), ``(..., n, L)``: one bincount per leading index over (window, cluster) bins."""
-    n_labels = int(labels.max()) + 1
-    n = labels.shape[1]
-    bins = (labels + n_labels * np.arange(n)).ravel()
-    flat = values.reshape(-1, labels.size)
-    sums = np.stack([np.bincount(bins, weights=row, minlength=n_labels * n) for row in flat])
-    return sums.reshape(*values.shape[:-2], n, n_labels)
 
 
 @functools.lru_cache(maxsize=16)
@@ -704,43 +709,49 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
     (n, P, P) float array
         Covariance of the parameters (units of the parameters). NaN where singular.
     """
-    jac = res.jac.transpose(2, 1, 0)  # candidate-minor (P, M, n), as the fit made it
-    r, info = res.residuals.T, res.info_inv  # (M, n), (n, P, P)
-    fitted = jac[-1] != 0  # the background derivative is 1 on every fitted pixel
+    info = res.info_inv  # (n, P, P)
     base_var = noise_sigma**2
-    signal = jac[0] * res.params[:, 0]
     good = np.all(np.isfinite(info), axis=(1, 2))
     usable = np.flatnonzero(good)  # the pooled slope needs only an evenly spread sample of them
     sample = usable[:: max(1, usable.size // _SLOPE_SAMPLE)]
     slope = 0.0 if shot_slope is None else shot_slope
     if shot_slope is None and sample.size:
-        jg = np.take(jac, sample, axis=-1)  # (P, M, k)
+        rg, jg = res.minor(sample)  # (M, k), (P, M, k)
         if sample.size < _MATMUL_MAX:
             jk = jg.transpose(2, 1, 0)  # (k, M, P)
             leverage = ((jk @ info[sample]) * jk).sum(axis=2).T
         else:
             info_t = np.ascontiguousarray(info[sample].transpose(1, 2, 0))  # (P, P, k)
             leverage = np.einsum("jmk,jmk->mk", np.einsum("imk,ijk->jmk", jg, info_t), jg)
-        f = np.take(fitted, sample, axis=1) & (leverage < 0.9)
+        f = (jg[-1] != 0) & (leverage < 0.9)  # fitted: the background derivative is 1 there
         var_sample = base_var[sample]
-        x = np.take(signal, sample, axis=1)[f]
-        t = np.take(r, sample, axis=1)[f] ** 2 / (1.0 - leverage[f]) - (np.zeros(f.shape) + var_sample)[f]
+        x = (jg[0] * res.params[sample, 0])[f]
+        t = rg[f] ** 2 / (1.0 - leverage[f]) - (np.zeros(f.shape) + var_sample)[f]
         sxx = float(np.dot(x, x))
         if sxx > 0:
             slope = float(np.dot(x, t)) / sxx
             standard_error = np.sqrt(2.0) * (float(var_sample.sum()) / var_sample.size) / np.sqrt(sxx)
             if slope < SHOT_NOISE_SIGNIFICANCE * standard_error:
                 slope = 0.0
+    factor = np.ones(len(info))
     if slope > 0.0 or correlation is not None:
-        pixel_var = np.where(fitted, base_var + slope * np.maximum(signal, 0.0), 0.0)
+        r, jac = res.minor()
+        signal = jac[0] * res.params[:, 0]  # both models have the peak first
+        pixel_var = np.where(jac[-1] != 0, base_var + slope * np.maximum(signal, 0.0), 0.0)
         cov = info @ _meat(jac, pixel_var, correlation) @ info
+        if good.any():
+            pick = slice(None) if usable.size == good.size else usable  # views where every fit is usable
+            factor[pick] = centre_misfit(jac[..., pick], info[pick], r[:, pick], pixel_var[:, pick], res.dof[pick],
+                                         centre)
     else:
-        pixel_var = np.where(fitted, base_var, 0.0)
         cov = base_var[:, None, None] * info
-    factor = np.ones(len(cov))
-    if good.any():
-        pick = slice(None) if usable.size == good.size else usable  # views where every fit is usable
-        factor[pick] = centre_misfit(jac[..., pick], info[pick], r[:, pick], pixel_var[:, pick], res.dof[pick], centre)
+        # white noise: a window's χ² is its cost over σ², and a misfit's exceeds its dof (every
+        # MISFIT_LEVEL quantile of χ² does): only those windows are evaluated and tested
+        maybe = usable[res.chi2_unit[usable] > base_var[usable] * np.maximum(res.dof[usable], 1)]
+        if maybe.size:
+            r, jac = res.minor(maybe)
+            factor[maybe] = centre_misfit(jac, info[maybe], r, np.where(jac[-1] != 0, base_var[maybe], 0.0),
+                                          res.dof[maybe], centre)
     return cov * factor[:, None, None]
 
 
