@@ -609,7 +609,7 @@ MISFIT_LEVEL = 0.999
 
 
 def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, pixel_var: np.ndarray,
-                  dof: np.ndarray, centre: tuple[int, ...]) -> np.ndarray:
+                  dof: np.ndarray, centre: tuple[int, ...], clusters: np.ndarray | None = None) -> np.ndarray:
     """Variance inflation of the centre where the model does not explain the window.
 
     With the noise model right, χ²/dof of a window scatters around 1 and the covariance is right
@@ -620,7 +620,14 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     flanks does. Such windows get the sandwich ratio ``Σ a_i² r_i² / Σ a_i² v_i`` (residuals
     ``r``, modelled pixel variances ``v``): what the residuals say about the centre's variance over
     what the noise model says (at least 1). Scaling by the whole window's χ²/dof instead overstated
-    the σ of stripes beside printed edges three-fold.
+    the σ of stripes beside printed edges three-fold. Where neighbouring pixels' errors are
+    correlated (demosaicing, subsampled chroma), ``clusters`` groups them and the numerator is the
+    cluster-robust ``Σ_c (Σ_{i∈c} a_i r_i)²``: errors that move together count as they add up.
+    Its denominator is then what that sum would be for independent whitened pixels,
+    ``Σ a_i² − Σ_c u_cᵀ (JᵀJ)⁻¹ u_c`` with ``u_c = Σ_{i∈c} a_i J_i``: the residuals are orthogonal to
+    ``a`` (``Σ a_i r_i = 0``), so the clusters' sums fall short of ``Σ a_i²`` by their leverage,
+    which is large where a few clusters carry the centre. With ``clusters`` every window gets the
+    ratio, as correlated noise does not show in χ².
 
     Parameters
     ----------
@@ -636,6 +643,9 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     centre : tuple of int
         Indices of the centre's parameters (one for a stripe, two for a spot); their ratios are
         averaged.
+    clusters : (M, n) int array, optional
+        Label of each pixel's group of correlated pixels within its window, from 0 (default: every
+        pixel its own); for whitened windows only (``pixel_var`` 1 where fitted, 0 elsewhere).
 
     Returns
     -------
@@ -646,16 +656,34 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     with np.errstate(divide="ignore", invalid="ignore"):
         chi2 = np.where(pixel_var > 0, residuals**2 / pixel_var, 0.0).sum(axis=0)
     table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
-    misfit = chi2 / dof > _misfit_limits(table_size)[dof - 1]
+    misfit = (chi2 / dof > _misfit_limits(table_size)[dof - 1]) | (clusters is not None)
     factor = np.ones(dof.size)
     if misfit.any():
         a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
-        a2 = a * a
+        ar = a * residuals[:, misfit]
+        expected = np.einsum("kmn,mn->kn", a * a, pixel_var[:, misfit])
+        if clusters is None:
+            spread = np.einsum("kmn,kmn->kn", ar, ar)
+        else:
+            labels = clusters[:, misfit]
+            spread = (_cluster_sums(ar, labels) ** 2).sum(axis=-1)
+            lever = _cluster_sums(jac[None, :, :, misfit] * a[:, None], labels)  # u_c, (K, P, m, L)
+            expected -= np.einsum("kpnl,npq,kqnl->kn", lever, info_inv[misfit], lever)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = (np.einsum("kmn,mn->kn", a2, residuals[:, misfit] ** 2)
-                     / np.einsum("kmn,mn->kn", a2, pixel_var[:, misfit])).mean(axis=0)
+            ratio = (spread / expected).mean(axis=0)
         factor[misfit] = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
     return factor
+
+
+def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Sums of ``values (..., M, n)`` over the pixels of each cluster of ``labels (M, n)`` (ints
+    from 0, per window), ``(..., n, L)``: one bincount per leading index over (window, cluster) bins."""
+    n_labels = int(labels.max()) + 1
+    n = labels.shape[1]
+    bins = (labels + n_labels * np.arange(n)).ravel()
+    flat = values.reshape(-1, labels.size)
+    sums = np.stack([np.bincount(bins, weights=row, minlength=n_labels * n) for row in flat])
+    return sums.reshape(*values.shape[:-2], n, n_labels)
 
 
 @functools.lru_cache(maxsize=16)
