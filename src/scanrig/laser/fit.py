@@ -655,8 +655,7 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     dof = np.maximum(dof, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         chi2 = np.where(pixel_var > 0, residuals**2 / pixel_var, 0.0).sum(axis=0)
-    table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
-    misfit = (chi2 / dof > _misfit_limits(table_size)[dof - 1]) | (clusters is not None)
+    misfit = _misfits(chi2, dof) | (clusters is not None)
     factor = np.ones(dof.size)
     if misfit.any():
         a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
@@ -684,6 +683,13 @@ def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
     flat = values.reshape(-1, labels.size)
     sums = np.stack([np.bincount(bins, weights=row, minlength=n_labels * n) for row in flat])
     return sums.reshape(*values.shape[:-2], n, n_labels)
+
+
+def _misfits(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """Whether each window's ``chi2 (n,)`` exceeds its ``MISFIT_LEVEL`` quantile for ``dof (n,)``
+    (at least 1)."""
+    table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
+    return chi2 / dof > _misfit_limits(table_size)[dof - 1]
 
 
 @functools.lru_cache(maxsize=16)
@@ -773,9 +779,9 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
                                          centre)
     else:
         cov = base_var[:, None, None] * info
-        # white noise: a window's χ² is its cost over σ², and a misfit's exceeds its dof (every
-        # MISFIT_LEVEL quantile of χ² does): only those windows are evaluated and tested
-        maybe = usable[res.chi2_unit[usable] > base_var[usable] * np.maximum(res.dof[usable], 1)]
+        # white noise: a window's χ² is its cost over σ², and only the misfits need their residuals
+        # (centre_misfit tests them again, on these)
+        maybe = usable[_misfits(res.chi2_unit[usable] / base_var[usable], np.maximum(res.dof[usable], 1))]
         if maybe.size:
             r, jac = res.minor(maybe)
             factor[maybe] = centre_misfit(jac, info[maybe], r, np.where(jac[-1] != 0, base_var[maybe], 0.0),
