@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from scanrig.errors import ShapeError
 from scanrig.geometry import RigidTransform
-from scanrig.geometry.transform import rotated_point_jacobian_rvec
+from scanrig.geometry.transform import canonical_rvec_jacobian, rotated_point_jacobian_rvec
 
 #: Float64 round-off after a few 3x3 products and a rotation-vector conversion.
 ROUNDOFF = 1e-12
@@ -61,3 +61,15 @@ def test_transform_is_immutable():
     a = RigidTransform.identity()
     with pytest.raises(ValueError):
         a.R[0, 0] = 2.0
+
+
+@pytest.mark.parametrize("angle", [0.3, 2.0, 3.0, 3.3, 5.0, 7.0, 9.0])
+def test_canonical_rvec_jacobian_matches_finite_differences(angle):
+    """The derivative of the canonical rotation vector (angle ≤ π) by a rotation vector of any
+    angle: the identity up to π, a different matrix past it."""
+    rvec = angle * np.array([0.48, -0.6, 0.64])
+    step = 1e-6
+    numeric = np.column_stack([(RigidTransform.from_rvec_tvec(rvec + d, np.zeros(3)).rvec
+                                - RigidTransform.from_rvec_tvec(rvec - d, np.zeros(3)).rvec) / (2 * step)
+                               for d in step * np.eye(3)])
+    np.testing.assert_allclose(canonical_rvec_jacobian(rvec), numeric, atol=1e-7)

@@ -20,7 +20,7 @@ from scanrig.calibration.lm import levenberg_marquardt, solve_spd
 from scanrig.calibration.uncertainty import center_jacobian
 from scanrig.errors import EstimationError, FileFormatError, InputError
 from scanrig.geometry.camera import Camera
-from scanrig.geometry.transform import RigidTransform
+from scanrig.geometry.transform import RigidTransform, canonical_rvec_jacobian
 from scanrig.io.csv_rows import read_csv_rows
 
 #: Fewest known points (6 pose unknowns; 5 points give 4 redundant residuals for the sigma).
@@ -135,16 +135,17 @@ def relocate_camera(camera: Camera, p_world: np.ndarray, uv: np.ndarray, sigma_p
         if not jac:
             return (cam.project(p_world) - uv).ravel()
         q, _, J_pose, _ = cam.project_with_jacobians(p_world)
+        J_pose[:, :, :3] = J_pose[:, :, :3] @ canonical_rvec_jacobian(x[:3])  # x may have passed π
         return (q - uv).ravel(), J_pose.reshape(-1, 6)
 
     res = levenberg_marquardt(fun, np.concatenate([rvec.ravel(), tvec.ravel()]))
-    r, J = fun(res.x, True)
+    new = camera.with_pose(RigidTransform.from_rvec_tvec(res.x[:3], res.x[3:]))
+    r, J = fun(np.concatenate([new.cam_from_world.rvec, new.cam_from_world.t]), True)  # canonical chart
     if not np.all(np.isfinite(r)):
         raise EstimationError("relocated pose puts known points behind the camera; check the point list")
     dof = 2 * len(p_world) - 6
     sigma = float(np.sqrt(r @ r / dof)) if sigma_px is None else float(sigma_px)
     cov = solve_spd(J.T @ J, np.eye(6)) * sigma ** 2
-    new = camera.with_pose(RigidTransform.from_rvec_tvec(res.x[:3], res.x[3:]))
     J_c = center_jacobian(new.cam_from_world)
     center_std = np.sqrt(np.maximum(np.diag(J_c @ cov @ J_c.T), 0.0))
     rot_std = float(np.degrees(np.sqrt(np.trace(cov[:3, :3]) / 3.0)))

@@ -109,6 +109,33 @@ def skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def canonical_rvec_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """Derivative of the canonical rotation vector of ``R(rvec)`` with respect to ``rvec``.
+
+    The canonical vector (angle at most π) is what :attr:`RigidTransform.rvec` returns, and what
+    Jacobians computed from a transform are taken with respect to. An optimiser's rotation vector
+    may grow past π; the same rotation is then ``rvec (1 − 2πk/θ)``, ``θ = |rvec|``,
+    ``k = round(θ / 2π)``, and a Jacobian by the canonical vector times this one is the Jacobian by
+    ``rvec``.
+
+    Parameters
+    ----------
+    rvec : ndarray of shape (3,)
+        Rotation vector, radians.
+
+    Returns
+    -------
+    ndarray of shape (3, 3)
+        ``J[i, j] = d canonical_i / d rvec_j``: the identity for angles up to π.
+    """
+    theta = float(np.linalg.norm(rvec))
+    turns = round(theta / (2.0 * np.pi))
+    if turns == 0:
+        return np.eye(3)
+    wrap = 2.0 * np.pi * turns / theta
+    return (1.0 - wrap) * np.eye(3) + wrap / theta**2 * np.outer(rvec, rvec)
+
+
 def rotated_point_jacobian_rvec(rvec: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Derivative of ``R(rvec) @ p`` with respect to the rotation vector.
 
