@@ -129,11 +129,14 @@ def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray
     """
     import cv2
 
-    e = np.maximum(excess, 0.0).astype(np.float32)
-    across_cols = np.zeros_like(e)
-    across_rows = np.zeros_like(e)
-    across_cols[:, :-1] = np.square(np.diff(e, axis=1))
-    across_rows[:-1, :] = np.square(np.diff(e, axis=0))
+    e = np.maximum(excess, 0.0, dtype=np.float32)
+    across_cols, across_rows = np.empty_like(e), np.empty_like(e)  # squared differences, 0 at the end
+    np.subtract(e[:, 1:], e[:, :-1], out=across_cols[:, :-1])
+    across_cols[:, -1] = 0.0
+    np.subtract(e[1:], e[:-1], out=across_rows[:-1])
+    across_rows[-1] = 0.0
+    np.square(across_cols, out=across_cols)
+    np.square(across_rows, out=across_rows)
     size = (tile_blocks, tile_blocks)
     sxx = cv2.boxFilter(across_cols, -1, size, normalize=False)
     syy = cv2.boxFilter(across_rows, -1, size, normalize=False)

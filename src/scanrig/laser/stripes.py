@@ -25,6 +25,7 @@ from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_
 from scanrig.laser.image import prepare_image
 from scanrig.laser.luma import luma_difference
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
+from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.stripe_candidates import (
     LineCandidates,
     crossed_steeply,
@@ -250,13 +251,11 @@ def _fit_lines(signal, saturated, line, pos, maxima, background, noise, max_widt
     the line is given (:func:`~scanrig.laser.fit.parameter_covariance`)."""
     half = int(np.ceil(3.0 * max_width_px))
     offs = np.arange(-half, half + 1)
-    n_pos = signal.shape[1]
-    idx = offs[:, None] + pos
-    inside = (idx >= 0) & (idx < n_pos)
-    np.clip(idx, 0, n_pos - 1, out=idx)
-    y = signal[line, idx].astype(np.float64)
-    mask = inside & _nearest_on_line(line, pos, maxima, offs)
-    sat = None if saturated is None else saturated[line, idx]
+    window = (line, pos - half, 1, 2 * half + 1)  # beyond the frame its edge repeats (and is masked)
+    y = np.ascontiguousarray(pixel_blocks(signal, *window)[:, 0].T, dtype=np.float64)
+    mask = _nearest_on_line(line, pos, maxima, offs)
+    mask &= (offs[:, None] >= -pos) & (offs[:, None] < signal.shape[1] - pos)  # inside the frame
+    sat = None if saturated is None else np.ascontiguousarray(pixel_blocks(saturated, *window)[:, 0].T)
     if sat is not None:
         mask &= ~sat
     p0 = _start(y, background.astype(np.float64), half, max_width_px, sat)
