@@ -35,6 +35,26 @@ def test_red_minus_other_channels_removes_white_light():
     np.testing.assert_array_equal(li.signal, np.full((40, 50), 30.0, np.float32))
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("with_dark", [False, True])
+def test_colour_signal_and_laser_plane_are_the_plain_differences(dtype, with_dark):
+    rng = np.random.default_rng(104)
+    high = int(0.9 * np.iinfo(dtype).max)  # nothing clipped
+    img = rng.integers(0, high, (30, 40, 3)).astype(dtype)
+    dark = rng.integers(0, high, (30, 40, 3)).astype(dtype) if with_dark else None
+    roi = (3, 2, 37, 28)
+    li = prepare_image(img, "green", dark, roi=roi, noise_sigma=1.0)
+    inside = np.s_[roi[1]:roi[3], roi[0]:roi[2]]
+    on = img[inside].astype(np.float64)
+    off = dark[inside].astype(np.float64) if with_dark else np.zeros_like(on)
+    expected = (on[..., 1] - off[..., 1]) - 0.5 * (on[..., 0] - off[..., 0] + on[..., 2] - off[..., 2])
+    assert li.saturated is None and li.signal.dtype == np.float32
+    np.testing.assert_array_equal(li.signal, expected)  # half-integers: exact in float32
+    plane = li.colour.laser_plane
+    assert plane.dtype == (np.float32 if with_dark else dtype)
+    np.testing.assert_array_equal(plane, on[..., 1] - off[..., 1])
+
+
 def test_dark_frame_is_subtracted_and_roi_offsets_reported():
     rng = np.random.default_rng(103)
     img = rng.integers(20, 200, (60, 80)).astype(np.uint8)
