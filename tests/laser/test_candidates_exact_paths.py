@@ -29,6 +29,7 @@ from scanrig.laser.noise import (
     correlated_noise_factor,
     high_pass_bands,
 )
+from scanrig.laser.pixels import padded_box_sums
 from scanrig.laser.stripe_candidates import _centre_of_saturated_run, leading_true
 
 
@@ -181,6 +182,17 @@ def test_clutter_cells_are_those_of_the_plain_computation(as_half_integers, scal
     assert fast.any() and not fast[0, 0]
     bin_width = clip / _CLUTTER_BINS / (3.0 * _CLUTTER_WHITE)
     assert np.all((fast <= plain) & (fast >= plain - bin_width))
+
+
+@pytest.mark.parametrize("as_half_integers", [False, True])
+def test_clutter_cells_from_the_frames_box_sums_are_those_from_the_signal(as_half_integers):
+    rng = np.random.default_rng(9)
+    values = _jpeg_like(rng, (200, 336)) + rng.integers(0, 3, (200, 336)) + 40
+    signal = (values / 2.0).astype(np.float32) if as_half_integers else values.astype(np.uint8)
+    noise = np.full((4, 6), 1e-3, np.float32)
+    summed = clutter_cells(signal, noise)
+    assert summed.any()
+    np.testing.assert_array_equal(clutter_cells(signal, noise, padded_box_sums(signal)), summed)
 
 
 def test_variance_line_is_the_least_squares_line():

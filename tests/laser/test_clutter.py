@@ -39,7 +39,7 @@ def _candidates(li):
 
 
 def _without_clutter(monkeypatch):
-    monkeypatch.setattr(image_module, "clutter_cells", lambda signal, noise: np.zeros_like(noise))
+    monkeypatch.setattr(image_module, "clutter_cells", lambda signal, noise, box_sums=None: np.zeros_like(noise))
 
 
 def test_clutter_of_white_noise_is_its_sigma(monkeypatch):

@@ -175,7 +175,7 @@ class LaserImage:
         grey signal (luma keeps full resolution: its noise estimate sees its structure)."""
         if self.colour is None:
             return np.zeros_like(self.noise)
-        return clutter_cells(self.signal, self.noise)
+        return clutter_cells(self.signal, self.noise, self.box_sums if self.box_sums_computed() else None)
 
     def clutter_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """:attr:`clutter`, DN, at integer signal coordinates ``u``, ``v`` (same shape). A stripe's

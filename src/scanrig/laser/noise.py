@@ -382,7 +382,7 @@ _CLUTTER_MIN_MAXIMA = 8
 _CLUTTER_BINS = 128
 
 
-def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
+def clutter_cells(signal: np.ndarray, noise: np.ndarray, box_sums: np.ndarray | None = None) -> np.ndarray:
     """Structured clutter per ``NOISE_CELL``-pixel cell, in noise-equivalent σ of a pixel, DN.
 
     JPEG stores colour at half resolution in 8 × 8 blocks: on flat paper, where quantisation leaves
@@ -406,6 +406,9 @@ def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
     signal : (H, W) array, DN
     noise : (ceil(H/cell), ceil(W/cell)) float32 array, DN
         The noise cells (:func:`estimate_noise`).
+    box_sums : (H + 2, W + 2) array, optional
+        :func:`~scanrig.laser.pixels.padded_box_sums` of ``signal``, when computed: their rows are
+        read instead of summed again.
 
     Returns
     -------
@@ -421,9 +424,12 @@ def clutter_cells(signal: np.ndarray, noise: np.ndarray) -> np.ndarray:
     if w < 2 * reach + 5 or h < 3:
         return np.zeros_like(noise)
     rows = np.arange(1, h - 1, _CLUTTER_ROW_STEP)
-    work = {np.dtype(np.uint8): np.int16, np.dtype(np.uint16): np.int32}.get(signal.dtype, np.float32)  # exact
-    col3 = signal[rows - 1].astype(work) + signal[rows] + signal[rows + 1]
-    box = (col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]).astype(np.float32)  # columns 1 .. W-2
+    if box_sums is None:
+        work = {np.dtype(np.uint8): np.int16, np.dtype(np.uint16): np.int32}.get(signal.dtype, np.float32)  # exact
+        col3 = signal[rows - 1].astype(work) + signal[rows] + signal[rows + 1]
+        box = (col3[:, :-2] + col3[:, 1:-1] + col3[:, 2:]).astype(np.float32)  # columns 1 .. W-2
+    else:  # the same exact sums (the ring holds rows and columns -1 and W)
+        box = box_sums[rows + 1, 2:-2].astype(np.float32, copy=False)
     n = box.shape[1]
     centre = box[:, reach : n - reach]  # columns reach + 1 .. W - reach - 2
     is_max = (centre >= box[:, reach - 1 : n - reach - 1]) & (centre > box[:, reach + 1 : n - reach + 1])
