@@ -73,21 +73,29 @@ class ColourFrames:
         Index of the laser's colour (0 red, 1 green, 2 blue).
     clip_level : (3,) float array
         DN from which a pixel counts as clipped, per channel (its saturation level less ``CLIP_MARGIN``).
-    laser_plane : (H, W) array, DN
-        The laser channel, minus the dark frame's: float32, or without a dark frame the raw
-        channel, contiguous (integers: exact, and fast in the filters). Taken from the frames when
-        not given (:func:`prepare_image` has it from the signal's computation).
+    raw_laser : (H, W) uint8 or uint16 array, DN
+        The frame's own laser channel, contiguous; extracted when not given (:func:`prepare_image`
+        has it from the signal's computation).
     """
 
     image: np.ndarray
     dark: np.ndarray | None
     laser_channel: int
     clip_level: np.ndarray
-    laser_plane: np.ndarray | None = None
+    raw_laser: np.ndarray | None = None
 
     def __post_init__(self):
-        if self.laser_plane is None:
-            object.__setattr__(self, "laser_plane", self._difference(self.laser_channel))
+        if self.raw_laser is None:
+            import cv2
+
+            object.__setattr__(self, "raw_laser", cv2.extractChannel(np.ascontiguousarray(self.image),
+                                                                     self.laser_channel))
+
+    @functools.cached_property
+    def laser_plane(self) -> np.ndarray:
+        """The laser channel, minus the dark frame's, ``(H, W)``, DN: float32, or without a dark
+        frame :attr:`raw_laser` (integers: exact, and fast in the filters)."""
+        return self._difference(self.laser_channel)
 
     @functools.cached_property
     def laser_box_sums(self) -> np.ndarray:
@@ -111,10 +119,11 @@ class ColourFrames:
         """Channel ``c`` minus the dark frame's, like :attr:`laser_plane`, DN."""
         import cv2
 
-        if self.dark is None:
-            return cv2.extractChannel(np.ascontiguousarray(self.image), c)
         # OpenCV on the extracted planes: twice as fast as NumPy on the strided channels
-        return cv2.subtract(cv2.extractChannel(self.image, c), cv2.extractChannel(self.dark, c), dtype=cv2.CV_32F)
+        channel = self.raw_laser if c == self.laser_channel else cv2.extractChannel(self.image, c)
+        if self.dark is None:
+            return channel
+        return cv2.subtract(channel, cv2.extractChannel(self.dark, c), dtype=cv2.CV_32F)
 
 
 @dataclass(frozen=True)
@@ -266,9 +275,9 @@ def prepare_image(
     clip_levels = levels * (1.0 - CLIP_MARGIN)
     colour = None
     if image.ndim == 3 and color != "grey":
-        signal, laser_plane = _colour_signal(image, dark, _CHANNEL[color])
-        colour = ColourFrames(image, dark, _CHANNEL[color], clip_levels, laser_plane)
-        saturated = _clipped(image, color, clip_levels, laser_plane if dark is None else None)
+        signal, raw_laser = _colour_signal(image, dark, _CHANNEL[color])
+        colour = ColourFrames(image, dark, _CHANNEL[color], clip_levels, raw_laser)
+        saturated = _clipped(image, color, clip_levels, raw_laser)
     else:
         signal = _signal(image, color)
         if dark is not None:
@@ -400,7 +409,7 @@ def _signal(image: np.ndarray, color: str) -> np.ndarray:
 
 
 def _colour_signal(image: np.ndarray, dark: np.ndarray | None, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The signal of a colour laser and its own channel, computed together: without a dark frame
+    """The signal of a colour laser, and the frame's laser channel on the way: without a dark frame
     from the frame's split planes, with one from the frames' difference (one OpenCV pass each,
     twice as fast as the signals of both frames subtracted).
 
@@ -415,22 +424,23 @@ def _colour_signal(image: np.ndarray, dark: np.ndarray | None, k: int) -> tuple[
     -------
     signal : (H, W) float32 array, DN
         Channel ``k`` minus the mean of the two others, minus the same of ``dark``.
-    laser_plane : (H, W) array, DN
-        Channel ``k`` minus the dark frame's, float32; without a dark frame the raw channel.
+    raw_laser : (H, W) array like ``image``, DN
+        Channel ``k`` of ``image``, contiguous.
     """
     import cv2
 
     # the values are half-integers, exact in float32 whatever the order of the sums
     others = [c for c in range(3) if c != k]
+    image = np.ascontiguousarray(image)
     if dark is None:
         # OpenCV on the split planes: one pass each, no float copy of the three channels
-        planes = cv2.split(np.ascontiguousarray(image))
+        planes = cv2.split(image)
         half_others = cv2.addWeighted(planes[others[0]], 0.5, planes[others[1]], 0.5, 0.0, dtype=cv2.CV_32F)
         return cv2.subtract(planes[k], half_others, dtype=cv2.CV_32F), planes[k]
-    difference = cv2.subtract(np.ascontiguousarray(image), np.ascontiguousarray(dark), dtype=cv2.CV_32F)
     weights = np.full((1, 3), -0.5)
     weights[0, k] = 1.0
-    return cv2.transform(difference, weights), cv2.extractChannel(difference, k)
+    difference = cv2.subtract(image, np.ascontiguousarray(dark), dtype=cv2.CV_32F)
+    return cv2.transform(difference, weights), cv2.extractChannel(image, k)
 
 
 def background_cells(signal: np.ndarray) -> np.ndarray:
