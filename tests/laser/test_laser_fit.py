@@ -54,6 +54,27 @@ def test_fit_recovers_noise_free_parameters_exactly():
     np.testing.assert_allclose(res.params, truth, atol=1e-6)
 
 
+def test_jacobian_and_residuals_at_the_solution_match_the_model_there():
+    """The result's Jacobian and residuals, evaluated when asked for, are the model's at the fitted
+    parameters (zero on masked pixels), and those of a subset are its columns."""
+    rng = np.random.default_rng(7)
+    x = np.arange(-6.0, 7.0)
+    n = 40
+    truth = np.column_stack([rng.uniform(50, 200, n), rng.uniform(-0.5, 0.5, n), rng.uniform(0.8, 2.0, n),
+                             rng.uniform(0, 20, n)])
+    y = model_1d(x, truth)[0] + rng.normal(0, 2.0, (n, x.size))
+    mask = rng.random(y.shape) > 0.1
+    res = fit_batch(lambda p: model_1d(x, p), y, mask, truth, np.array([1e-3, -6, 0.3, -np.inf]),
+                    np.array([np.inf, 6, 4, np.inf]))
+    mu, jac = model_1d(x, res.params)
+    np.testing.assert_allclose(res.residuals, np.where(mask, y - mu, 0.0), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(res.jac, np.where(mask[:, :, None], jac, 0.0), rtol=1e-12, atol=1e-9)
+    some = np.array([3, 17, 29])
+    r, j = res.minor(some)  # candidate-minor
+    np.testing.assert_array_equal(r, res.residuals[some].T)
+    np.testing.assert_array_equal(j, res.jac[some].transpose(2, 1, 0))
+
+
 def test_crb_equals_monte_carlo_spread_of_the_fit():
     """The fit of 4000 noisy profiles scatters as the bound says (within sampling error)."""
     rng = np.random.default_rng(201)
