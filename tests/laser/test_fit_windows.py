@@ -45,7 +45,7 @@ def _row_candidates(image):
 
 
 def _clutter(monkeypatch, over_noise):
-    monkeypatch.setattr(image_module, "clutter_cells", lambda signal, noise: over_noise * noise)
+    monkeypatch.setattr(image_module, "clutter_cells", lambda signal, noise, box_sums=None: over_noise * noise)
 
 
 def test_a_texture_peak_rejected_against_the_clutter_bounds_the_stripes_window(monkeypatch):
