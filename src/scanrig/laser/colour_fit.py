@@ -107,7 +107,7 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     x = offs.astype(float)
     laser = colour.laser_channel
     p0 = _plain_start(y, usable, noise, laser, trial, 1)
-    res, cov = _fit(y, usable, noise, _model_1d(x, noise), p0, lower, upper, 1, _normal_1d(x, noise, lower, upper))
+    res, cov = _fit(y, usable, noise, _model_1d(x, noise), p0, lower, upper, 1, _normal_1d(x, noise, (lower, upper)))
     p, var = res.params, cov[:, 0, 0]
     max_shift_px = np.broadcast_to(max_shift_px, var.shape)
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
@@ -373,10 +373,11 @@ def _model_1d(x: np.ndarray, noise: np.ndarray):
     return model
 
 
-def _normal_1d(x: np.ndarray, noise: np.ndarray, lower: np.ndarray, upper: np.ndarray):
+def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None = None):
     """The cost and normal equations of :func:`_model_1d` for :func:`scanrig.laser.fit.fit_batch`
-    (``normal``), from the channels' sums instead of the dense Jacobian, after setting each
-    channel's amplitude and background to their least-squares optimum for the profile at hand.
+    (``normal``), from the channels' sums instead of the dense Jacobian; given ``bounds``, after
+    setting each channel's amplitude and background to their least-squares optimum for the profile
+    at hand.
 
     On channel ``c`` the Jacobian's columns are the profile's bases ``f = (g, ∂g/∂x0, ∂g/∂s, 1)``
     scaled by ``(1/σ_c, a_c/σ_c, a_c/σ_c, 1/σ_c)`` for ``(a_c, x0, s, b_c)`` and zero for the other
@@ -385,12 +386,13 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, lower: np.ndarray, upper: np.nd
     Jacobian, which is never built). ``p (8, k)``, ``y, w (3 W, k)`` -> ``Σ r² (k,)``, ``JᵀJ (8, 8, k)``
     (lower triangle), ``Jᵀr (8, k)``.
 
-    The amplitudes and backgrounds enter the model linearly: solved from the same sums (a 2 × 2
-    system per channel, clipped to ``lower, upper (8,)``), they are written into ``p`` before the
-    normal equations are formed (variable projection), so the fit's steps are spent on the
-    centre and width, which the linear levels would otherwise follow only over many steps (the
-    large misfit of a halo makes Gauss–Newton converge linearly): 30 % fewer evaluations on the
-    rendered colour set, the same centres within the stop rule's tolerance.
+    The amplitudes and backgrounds enter the model linearly. Given ``bounds`` (the fit's ``(8,)``
+    lower and upper bounds), they are solved from the same sums (a 2 × 2 system per channel,
+    clipped to the bounds) and written into ``p`` before the normal equations are formed (variable
+    projection), so the fit's steps are spent on the centre and width, which the linear levels
+    would otherwise follow only over many steps (the large misfit of a halo makes Gauss–Newton
+    converge linearly): 30 % fewer evaluations on the rendered colour set, the same centres within
+    the stop rule's tolerance.
     """
     edges = _edges(x)
     w_px = x.size
@@ -411,9 +413,11 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, lower: np.ndarray, upper: np.nd
             w3 = w.reshape(3, w_px, k)
             sums = np.stack([_gram(basis * w3[c])[rows, cols] for c in range(3)], axis=1)  # Σ w f_i f_j, (10, 3, k)
             wy = y3 * w3
-        levels = _channel_levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
-                                 np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1), p[2:8] * inv_noise[[0, 1, 2] * 2])
-        np.clip(levels / inv_noise[[0, 1, 2] * 2], lower[2:8, None], upper[2:8, None], out=p[2:8])
+        if bounds is not None:
+            levels = _channel_levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
+                                     np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1),
+                                     p[2:8] * inv_noise[[0, 1, 2] * 2])
+            np.clip(levels / inv_noise[[0, 1, 2] * 2], bounds[0][2:8, None], bounds[1][2:8, None], out=p[2:8])
         amp = p[2:5] * inv_noise  # (3, k), whitened
         r = y3 - basis[0] * amp[:, None]
         r -= (p[5:8] * inv_noise)[:, None]
