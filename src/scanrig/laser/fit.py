@@ -412,7 +412,7 @@ def _in_order(groups: list, n: int) -> list[np.ndarray]:
         return groups[0][1:]
     columns = np.concatenate([g[0] for g in groups])
     stacked = [np.concatenate(parts, axis=-1) for parts in zip(*(g[1:] for g in groups))]
-    order = np.argsort(columns)
+    order = np.argsort(columns, kind="stable")  # (a merge of the groups' ascending runs)
     return [a[..., order] for a in stacked]  # (faster than np.take for a permutation)
 
 

@@ -257,10 +257,15 @@ def _maxima_in_patches(sig: np.ndarray, flagged: np.ndarray, along: str):
     k, dv, du = flat >> 2 * _BLOCK_BITS, (flat >> _BLOCK_BITS) & (BLOCK - 1), flat & (BLOCK - 1)
     v = bi[k] * BLOCK + dv
     u = bj[k] * BLOCK + du
-    inside = (v < h) & (u < w)
-    k, dv, du, v, u = k[inside], dv[inside], du[inside], v[inside], u[inside]
-    order = np.argsort(v * w + u)  # one integer key sorts faster than two
-    return v[order], u[order], core[dv[order], du[order], k[order]]
+    if h % BLOCK or w % BLOCK:  # the last blocks reach beyond the frame
+        inside = (v < h) & (u < w)
+        k, dv, du, v, u = k[inside], dv[inside], du[inside], v[inside], u[inside]
+    # one integer key sorts faster than two, and a stable sort (a merge of the sorted runs that
+    # the blocks of one row give) faster than the default; the keys are distinct
+    order = np.argsort(v * w + u, kind="stable")
+    # the box sum at core[dv, du, k], one index into the flat box sums
+    at = ((dv[order] + 1) * box.shape[1] + du[order] + 1) * n + k[order]
+    return v[order], u[order], box.ravel().take(at)
 
 
 def _maxima_of_frame(box: np.ndarray, flagged: np.ndarray, along: str):
