@@ -61,6 +61,11 @@ class Candidates:
 def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     """Excess of each 4 × 4 block's maximum over background + ``k_seed`` σ, DN.
 
+    σ is the noise or, in a colour frame where it is larger, the frame's structured clutter
+    (:attr:`~scanrig.laser.image.LaserImage.clutter`), which a stripe's peak must clear in the
+    detection test as well: a block of JPEG texture alone seeds no search and adds no structure
+    to :func:`worth_scanning`.
+
     Returns
     -------
     (ceil(H/4), ceil(W/4)) float32 array
@@ -71,7 +76,8 @@ def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     shape = block_max.shape
     # the threshold on the background's cells (noise cells are whole multiples of them), then
     # repeated to blocks: the same float32 values as computed block by block, 16× fewer
-    noise = _upsample(li.noise, NOISE_CELL // BG_CELL, li.background.shape)
+    seed_sigma = li.noise if li.colour is None else np.maximum(li.noise, li.clutter)
+    noise = _upsample(seed_sigma, NOISE_CELL // BG_CELL, li.background.shape)
     threshold = _upsample(li.background + np.float32(k_seed) * noise, BG_CELL // BLOCK, shape)
     return np.subtract(block_max, threshold, dtype=np.float32)
 
