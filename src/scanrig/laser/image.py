@@ -207,6 +207,14 @@ class LaserImage:
         """Whether :attr:`box_sums` has been computed (by a search of the whole frame)."""
         return "box_sums" in self.__dict__
 
+    @functools.cached_property
+    def luma(self):
+        """:func:`~scanrig.laser.luma.luma_difference` of the colour frame and its laser-off frame,
+        computed once per frame when asked (both scan directions use it)."""
+        from scanrig.laser.luma import luma_difference  # it imports this module
+
+        return luma_difference(self.colour)
+
 
 def prepare_image(
     image: np.ndarray,

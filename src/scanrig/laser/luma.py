@@ -23,7 +23,6 @@ the beam, and the colour difference is fitted there (:attr:`LumaDifference.laser
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,7 +105,6 @@ class LumaDifference:
         return self.correlation_rows if rows else self.correlation_columns
 
 
-@functools.lru_cache(maxsize=1)  # rows and columns of one frame share it
 def luma_difference(colour: ColourFrames) -> LumaDifference:
     """The :class:`LumaDifference` of a colour frame with its laser-off frame (``colour.dark`` set)."""
     import cv2

@@ -30,7 +30,6 @@ from scanrig.laser.fit import (
     parameter_covariance,
 )
 from scanrig.laser.image import prepare_image
-from scanrig.laser.luma import luma_difference
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
 from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.stripe_candidates import (
@@ -180,7 +179,7 @@ def _fit_along(li, along, cand: LineCandidates, max_width_px, unknown_pixels) ->
     if not clipped.all():
         plain = cand.take(~clipped)
         if (li.colour is not None and li.colour.dark is not None
-                and luma_difference(li.colour).carries_laser(li.colour.laser_channel)):
+                and li.luma.carries_laser(li.colour.laser_channel)):
             parts.append(_fit_luma(li, rows, saturated, plain, max_width_px))
         else:
             uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
@@ -241,7 +240,7 @@ def _fit_luma(li, rows, saturated, plain: LineCandidates, max_width_px) -> dict[
     laser, fitted on the luma difference (:mod:`scanrig.laser.luma`). A candidate without a peak
     there is not the laser (the colour difference rings beside printed edges): its fit fails and
     it is dropped (on the rendered colour set 90 of 706 candidates per frame, none on the beam)."""
-    luma = luma_difference(li.colour)
+    luma = li.luma
     uv = (plain.pos, plain.line) if rows else (plain.line, plain.pos)
     return _fit_lines(luma.plane if rows else luma.plane.T, saturated, plain.line, plain.pos, plain.maxima,
                       np.zeros(plain.line.size), luma.sigma_at(*uv), max_width_px, plain.prominence,
