@@ -361,7 +361,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         curvature = np.ones(n)  # along the last step, over Gauss–Newton's (1 until a step measures it)
     lam = np.full(n, _LAMBDA0)
     converged = np.zeros(n, bool)
-    stopped = []  # per group of candidates that left together: [candidates, p, cost, JᵀJ]
+    # the candidates' final state, written as they leave the working set
+    p_out, cost_out, hess_out = np.empty_like(p), np.empty_like(cost), np.empty_like(hess)
     for step_count in range(n_iter + 1):
         # a parameter on its bound that the cost pushes outwards is held there (projected step)
         held = ((pa <= lower) & (grad <= 0.0)) | ((pa >= upper) & (grad >= 0.0))
@@ -380,7 +381,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
             leave[:] = True
         if leave.any():
             out = np.flatnonzero(leave)
-            stopped.append([a[..., out] for a in (idx, pa, cost, hess)])
+            done = idx[out]
+            p_out[:, done], cost_out[done], hess_out[..., done] = pa[:, out], cost[out], hess[..., out]
             keep = np.flatnonzero(~leave)
             idx, ya, pa, p_try, cost, hess, grad, lam = (
                 np.take(a, keep, axis=-1) for a in (idx, ya, pa, p_try, cost, hess, grad, lam))
@@ -401,19 +403,7 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         else:  # the rejected keep their state: one masked pass per array, no boolean gathers
             for kept, tried in ((pa, p_try), (cost, cost_try), (hess, hess_try), (grad, grad_try)):
                 np.copyto(kept, tried, where=accepted)
-    p, cost, hess = _in_order(stopped, n)
-    return FitResult(p.T, _spd_inverse(hess), cost, dof, model, y, w)
-
-
-def _in_order(groups: list, n: int) -> list[np.ndarray]:
-    """Arrays of all ``n`` candidates, in order, from ``groups`` ``[candidates (k,), a (..., k),
-    b (..., k) ...]`` that hold each candidate once (the last axis of each array is the candidate's)."""
-    if len(groups) == 1:  # all at once: in order already (the working set's order is ascending)
-        return groups[0][1:]
-    columns = np.concatenate([g[0] for g in groups])
-    stacked = [np.concatenate(parts, axis=-1) for parts in zip(*(g[1:] for g in groups))]
-    order = np.argsort(columns, kind="stable")  # (a merge of the groups' ascending runs)
-    return [a[..., order] for a in stacked]  # (faster than np.take for a permutation)
+    return FitResult(p_out.T, _spd_inverse(hess_out), cost_out, dof, model, y, w)
 
 
 def _held(hess: np.ndarray, grad: np.ndarray, held: np.ndarray):
