@@ -10,7 +10,7 @@ from hypothesis import given, settings as hypothesis_settings, strategies as st
 from scanrig.errors import InputError, ShapeError
 from scanrig.io.ply import read_points_with_sigma
 from scanrig.surface import filter_points
-from scanrig.surface.filter import POINT_TRUST_FACTOR, TRUST_FACTOR, _chart_noise, _typical_noise
+from scanrig.surface.filter import POINT_TRUST_FACTOR, TRUST_FACTOR, _chart_noise, _trusted, _typical_noise
 from scanrig.surface.sparse import SPARSE_CHART_POINTS
 
 from .conftest import FAST
@@ -196,6 +196,16 @@ def test_typical_noise_is_the_median_over_the_points(charts_and_sizes):
     charts = [SimpleNamespace(members=np.arange(n)) for _, n in charts_and_sizes]
     every_point = np.sort(np.repeat(sigma, [n for _, n in charts_and_sizes]))
     assert _typical_noise(charts, sigma) == every_point[(len(every_point) + 1) // 2 - 1]
+
+
+def test_a_chart_too_small_for_its_networks_is_not_trusted():
+    # a fit as tight as the reference does not vouch for fewer than SPARSE_CHART_POINTS members
+    # (a slice of a blob of reflections); a loose fit never does
+    charts = [SimpleNamespace(members=np.arange(n)) for n in (SPARSE_CHART_POINTS - 1, SPARSE_CHART_POINTS,
+                                                               10 * SPARSE_CHART_POINTS)]
+    sigma_ref = 2e-4
+    sigma_fit = np.array([sigma_ref, sigma_ref, 1.01 * TRUST_FACTOR * sigma_ref])
+    assert _trusted(charts, sigma_fit, sigma_ref).tolist() == [False, True, False]
 
 
 def test_a_blob_of_reflections_cut_into_its_own_charts_is_flagged():
