@@ -397,6 +397,7 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.nd
     edges = _edges(x)
     w_px = x.size
     inv_noise = (1.0 / np.asarray(noise, float))[:, None]  # (3, 1)
+    inv_noise_levels = np.tile(inv_noise, (2, 1))  # (6, 1): the amplitudes', then the backgrounds'
     rows, cols = np.tril_indices(4)  # the pairs (i, j ≤ i) of bases; pair[i, j]: the index of one
     pair = {(i, j): k for k, (i, j) in enumerate(zip(rows, cols))}
 
@@ -416,8 +417,8 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.nd
         if bounds is not None:
             levels = _channel_levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
                                      np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1),
-                                     p[2:8] * inv_noise[[0, 1, 2] * 2])
-            np.clip(levels / inv_noise[[0, 1, 2] * 2], bounds[0][2:8, None], bounds[1][2:8, None], out=p[2:8])
+                                     p[2:8] * inv_noise_levels)
+            np.clip(levels / inv_noise_levels, bounds[0][2:8, None], bounds[1][2:8, None], out=p[2:8])
         amp = p[2:5] * inv_noise  # (3, k), whitened
         r = y3 - basis[0] * amp[:, None]
         r -= (p[5:8] * inv_noise)[:, None]

@@ -298,6 +298,9 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         (lower triangle), Jᵀr (P, k))``, the weighted cost and normal equations of ``model``, for a
         model whose structure gives them more cheaply than its dense Jacobian (``w`` the mask as 0/1
         floats, None where every pixel is fitted). ``model`` is then evaluated only at the solution.
+        It may also set parameters of ``p`` in place before forming them (those that enter the
+        model linearly, to their optimum for the others: variable projection); the fit carries
+        what it leaves there.
     noise_var : (n,) float array, optional
         Noise variance σ² of each candidate's pixels, units of ``y²``; switches on the statistical
         stop rule and the step-length correction (see the notes).
