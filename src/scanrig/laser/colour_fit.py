@@ -415,9 +415,10 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.nd
             sums = np.stack([_gram(basis * w3[c])[rows, cols] for c in range(3)], axis=1)  # Σ w f_i f_j, (10, 3, k)
             wy = y3 * w3
         if bounds is not None:
-            levels = _channel_levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
-                                     np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1),
-                                     p[2:8] * inv_noise_levels)
+            amp, background, solvable = _levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
+                                                np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1))
+            current = p[2:8] * inv_noise_levels  # kept where a channel's system is singular
+            levels = np.concatenate([np.where(solvable, amp, current[:3]), np.where(solvable, background, current[3:])])
             np.clip(levels / inv_noise_levels, bounds[0][2:8, None], bounds[1][2:8, None], out=p[2:8])
         amp = p[2:5] * inv_noise  # (3, k), whitened
         r = y3 - basis[0] * amp[:, None]
@@ -450,17 +451,15 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.nd
     return normal
 
 
-def _channel_levels(s_gg, s_g1, s_11, s_gy, s_y, current):
-    """Amplitudes and backgrounds ``(6, k)`` (the three channels' amplitudes, then their
-    backgrounds) that minimise each channel's weighted squared residual for a profile ``g``, from
-    the sums ``Σ w g², Σ w g, Σ w, Σ w g y, Σ w y`` ``(3, k)`` each; ``current (6, k)`` where a
-    channel's system is singular (no usable pixel off the profile's peak)."""
-    det = s_gg * s_11 - s_g1 * s_g1
-    solvable = det > 1e-9 * np.maximum(s_gg * s_11, 1e-300)
+def _levels(s_gg, s_g, s_w, s_gy, s_y):
+    """Amplitude ``a`` and background ``b`` of ``y ≈ b + a g`` by weighted least squares, from the
+    sums ``Σ w g², Σ w g, Σ w, Σ w g y, Σ w y`` (arrays of one shape), and where that system is
+    solvable (elsewhere the channel has no usable pixel off the profile's peak, and ``a, b`` are
+    meaningless but finite)."""
+    det = s_w * s_gg - s_g**2
+    solvable = det > 1e-9 * np.maximum(s_w * s_gg, 1e-300)
     det = np.where(solvable, det, 1.0)
-    amp = np.where(solvable, (s_11 * s_gy - s_g1 * s_y) / det, current[:3])
-    background = np.where(solvable, (s_gg * s_y - s_g1 * s_gy) / det, current[3:])
-    return np.concatenate([amp, background])
+    return (s_w * s_gy - s_g * s_y) / det, (s_gg * s_y - s_g * s_gy) / det, solvable
 
 
 def _model_2d(xu: np.ndarray, xv: np.ndarray, noise: np.ndarray):
@@ -511,10 +510,9 @@ def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarr
     # the sums over the pixels, (n, 3, k), or (n, 3, 1) where they do not depend on the width
     s_w, s_y, s_yy = w.sum(-1)[..., None], wy.sum(-1)[..., None], (wy * yy).sum(-1)[..., None]
     s_g, s_gg, s_gy = w @ trial.T, w @ (trial * trial).T, wy @ trial.T
-    det = s_w * s_gg - s_g**2
-    solvable = det > 1e-9 * np.maximum(s_w * s_gg, 1e-300)  # else the channel has no usable flank: 0
+    amp, _, solvable = _levels(s_gg, s_g, s_w, s_gy, s_y)
+    amp = np.where(solvable, amp, 0.0)  # a channel with no usable flank: 0
     with np.errstate(divide="ignore", invalid="ignore"):
-        amp = np.where(solvable, (s_w * s_gy - s_g * s_y) / np.where(solvable, det, 1.0), 0.0)
         bg = np.where(s_w > 0, (s_y - amp * s_g) / np.maximum(s_w, 1e-300), 0.0)
     # the weighted squared residual of each linear fit, from the same sums (no (n, 3, k, M) array)
     resid = s_yy - 2.0 * (amp * s_gy + bg * s_y) + amp**2 * s_gg + 2.0 * amp * bg * s_g + bg**2 * s_w

@@ -76,8 +76,7 @@ def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     shape = block_max.shape
     # the threshold on the background's cells (noise cells are whole multiples of them), then
     # repeated to blocks: the same float32 values as computed block by block, 16× fewer
-    seed_sigma = li.noise if li.colour is None else np.maximum(li.noise, li.clutter)
-    noise = _upsample(seed_sigma, NOISE_CELL // BG_CELL, li.background.shape)
+    noise = _upsample(np.maximum(li.noise, li.clutter), NOISE_CELL // BG_CELL, li.background.shape)
     threshold = _upsample(li.background + np.float32(k_seed) * noise, BG_CELL // BLOCK, shape)
     return np.subtract(block_max, threshold, dtype=np.float32)
 
