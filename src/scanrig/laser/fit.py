@@ -652,19 +652,33 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     factor = np.ones(dof.size)
     if misfit.any():
         a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
-        ar = a * residuals[:, misfit]
-        expected = np.einsum("kmn,mn->kn", a * a, pixel_var[:, misfit])
         if clusters is None:
-            spread = np.einsum("kmn,kmn->kn", ar, ar)
+            factor[misfit] = lever_misfit(a, residuals[:, misfit], pixel_var[:, misfit])
         else:
+            ar = a * residuals[:, misfit]
+            expected = np.einsum("kmn,mn->kn", a * a, pixel_var[:, misfit])
             labels = clusters[:, misfit]
             spread = (_cluster_sums(ar, labels) ** 2).sum(axis=-1)
             lever = _cluster_sums(jac[None, :, :, misfit] * a[:, None], labels)  # u_c, (K, P, m, L)
             expected -= np.einsum("kpnl,npq,kqnl->kn", lever, info_inv[misfit], lever)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = (spread / expected).mean(axis=0)
-        factor[misfit] = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
+            factor[misfit] = _sandwich_factor(spread, expected)
     return factor
+
+
+def lever_misfit(a: np.ndarray, residuals: np.ndarray, pixel_var: np.ndarray) -> np.ndarray:
+    """:func:`centre_misfit`'s factor of windows with independent pixels, from the centre's rows
+    ``a (K, M, n)`` of ``(JᵀJ)⁻¹ Jᵀ`` (for a model whose structure gives them without its dense
+    Jacobian), ``residuals`` and ``pixel_var (M, n)``: ``Σ a_i² r_i² / Σ a_i² v_i``, averaged over
+    the K centre parameters, at least 1 (1 where undefined)."""
+    ar = a * residuals
+    return _sandwich_factor(np.einsum("kmn,kmn->kn", ar, ar), np.einsum("kmn,mn->kn", a * a, pixel_var))
+
+
+def _sandwich_factor(spread: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """``spread / expected (K, n)`` averaged over K, at least 1 (1 where undefined), ``(n,)``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (spread / expected).mean(axis=0)
+    return np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
 
 
 def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
