@@ -25,10 +25,10 @@ def bust():
     return read_image(folder / "laser.png"), read_image(folder / "laser_background.png")
 
 
-@pytest.mark.parametrize("use_dark", [False, True])
-def test_rank0_is_on_the_bust_stripe(bust, use_dark):
+@pytest.mark.parametrize("use_dark, direction", [(False, "auto"), (True, "auto"), (False, "rows")])
+def test_rank0_is_on_the_bust_stripe(bust, use_dark, direction):
     on, off = bust
-    t = scanrig.detect_stripe(on, color="red", dark=off if use_dark else None)
+    t = scanrig.detect_stripe(on, color="red", dark=off if use_dark else None, direction=direction)
     u, v, line, rank = (t[k].to_numpy() for k in ("u", "v", "line", "rank"))
     best = (rank == 0) & (v == line)
     found = np.full(on.shape[0], np.nan)

@@ -12,7 +12,7 @@ from scanrig.io.session import read_image, write_image
 from scanrig.laser.session_detect import DetectOptions, detect_session
 from scanrig.laser.traces import SCHEMA, read_traces, write_traces
 
-from .synth import spot_image
+from .synth import spot_image, stripe_image
 
 N_FRAMES = 5
 CAMERAS = ("cam2", "cam10")  # natural order: cam2 before cam10
@@ -63,6 +63,52 @@ def test_resume_skips_done_frames_and_refuses_other_options(session):
     assert resumed.equals(first)
     with pytest.raises(FileFormatError, match="traces.parquet: was made with options .* run without --resume"):
         detect_session(session, DetectOptions("stripe", "red"), resume=True)
+
+
+def _stripe_centre(rows):
+    return 60.3 + 0.05 * rows
+
+
+@pytest.fixture
+def stripe_session(tmp_path):
+    """Grey frames of a steep stripe crossing a horizontal one (an edge the laser is not on)."""
+    rng = np.random.default_rng(502)
+    folder = tmp_path / "scan" / "cam0"
+    folder.mkdir(parents=True)
+    for k in range(2):
+        steep = stripe_image((120, 160), _stripe_centre, rng, noise=2.0)
+        flat = stripe_image((120, 160), lambda cols: np.full_like(cols, 90.4), rng, background=0.0, noise=0.0,
+                            along="columns")
+        write_image(folder / f"f{k}.png", np.maximum(steep, flat))
+    (tmp_path / "session.toml").write_text('laser_mode = "stripe"\n')
+    return tmp_path
+
+
+def test_stripes_scanned_along_rows_only_when_asked(stripe_session, capsys):
+    auto = detect_session(stripe_session)
+    along_columns = auto["u"].to_numpy() == auto["line"].to_numpy()
+    assert along_columns.any()           # the flat stripe is scanned along columns by default
+    assert main(["detect", str(stripe_session), "--direction", "rows"]) == 0
+    rows, meta = read_traces(stripe_session / "traces.parquet")
+    assert meta["options"]["direction"] == "rows"
+    v, line, rank, u = (rows[c].to_numpy() for c in ("v", "line", "rank", "u"))
+    assert np.array_equal(v, line)
+    steep = (rank == 0) & (np.abs(line - 90) > 6)     # rows off the flat stripe
+    assert steep.sum() == 2 * (120 - 13)
+    np.testing.assert_allclose(u[steep], _stripe_centre(line[steep]), atol=0.1)
+    assert main(["detect", str(stripe_session), "--direction", "diagonal"]) == 2
+    assert "direction must be one of ('auto', 'rows', 'columns'), got 'diagonal'" in capsys.readouterr().err
+    assert main(["detect", str(stripe_session), "--mode", "spot", "--direction", "rows"]) == 2
+    assert "direction 'rows' applies to stripes; spot mode takes no direction" in capsys.readouterr().err
+
+
+def test_resume_of_a_file_without_direction_takes_auto(session):
+    first = detect_session(session)
+    options = DetectOptions("spot", "red").as_dict()
+    del options["direction"]
+    write_traces(session / "traces.parquet", first, {"options": options,
+                                                     "frames_done": [[c, f"f{k}"] for c in CAMERAS for k in range(N_FRAMES)]})
+    assert detect_session(session, resume=True).equals(first)
 
 
 def test_unreadable_and_mismatched_frames_are_named(session):

@@ -21,6 +21,9 @@ def command(
         "--resume", help="Keep traces.parquet and skip frames already in it.")] = False,
     roi: Annotated[str | None, typer.Option(help="Region of interest u0,v0,u1,v1 in pixels (end-exclusive).")] = None,
     k_detect: Annotated[float, typer.Option(help="Detection threshold in noise sigma of the 3x3 box sum.")] = 6.0,
+    direction: Annotated[str, typer.Option(
+        help="Stripes: scan along rows, columns, or auto (chosen per block). A fixed laser plane "
+             "seen steeply (a single-camera scanner) is best scanned along rows.")] = "auto",
 ):
     """Detect laser spots or stripes in every scan frame, with sub-pixel centres and their sigma.
 
@@ -44,7 +47,7 @@ def command(
         if len(roi_box) != 4:
             raise InputError(f"--roi must be four integers u0,v0,u1,v1, got {roi!r}")
     sess = Session(session)
-    options = options_from_session(sess, mode, color, roi_box, k_detect)
+    options = options_from_session(sess, mode, color, roi_box, k_detect, direction)
     stage = f"detecting {options.mode}s"
     with stage_progress() as progress:
         table = detect_session(sess.root, options, workers=workers, resume=resume,

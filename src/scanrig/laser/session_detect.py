@@ -23,6 +23,8 @@ from scanrig.laser.image import LASER_COLORS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
+#: Scan directions of stripe detection (:func:`scanrig.laser.stripes.detect_stripe`'s ``direction``).
+DIRECTIONS = ("auto", "rows", "columns")
 #: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
 _CHUNK_FRAMES = 8
 
@@ -39,12 +41,17 @@ class DetectOptions:
         Region of interest applied to every camera, pixels.
     k_detect : float
         Detection threshold in noise σ of the 3 × 3 box sum.
+    direction : {"auto", "rows", "columns"}
+        Stripe mode: the lines a stripe is scanned along ("auto": chosen per block). A fixed
+        laser plane seen steeply (most single-camera scanners) is best scanned along rows only, so
+        that no texture edge is taken along columns where the laser is not.
     """
 
     mode: str = "spot"
     color: str = "grey"
     roi: tuple[int, int, int, int] | None = None
     k_detect: float = 6.0
+    direction: str = "auto"
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -53,18 +60,22 @@ class DetectOptions:
             raise InputError(f"color must be one of {LASER_COLORS}, got {self.color!r}")
         if not self.k_detect > 0:
             raise InputError(f"k_detect must be a positive number of noise sigma, got {self.k_detect!r}")
+        if self.direction not in DIRECTIONS:
+            raise InputError(f"direction must be one of {DIRECTIONS}, got {self.direction!r}")
+        if self.mode == "spot" and self.direction != "auto":
+            raise InputError(f"direction {self.direction!r} applies to stripes; spot mode takes no direction")
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),
-                "k_detect": self.k_detect}
+                "k_detect": self.k_detect, "direction": self.direction}
 
 
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
-                         roi=None, k_detect: float = 6.0) -> DetectOptions:
+                         roi=None, k_detect: float = 6.0, direction: str = "auto") -> DetectOptions:
     """Options with ``mode`` and ``color`` defaulting to ``laser_mode`` / ``laser_color`` of session.toml."""
     settings = session.settings()
     return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
-                         None if roi is None else tuple(int(x) for x in roi), k_detect)
+                         None if roi is None else tuple(int(x) for x in roi), k_detect, direction)
 
 
 @dataclass
@@ -123,8 +134,11 @@ def detect_session(
     tables, done = [empty_table()], set()
     if resume and session.traces_path.exists():
         table, meta = read_traces(session.traces_path)
-        if meta.get("options") != options.as_dict():
-            raise FileFormatError(session.traces_path, f"was made with options {meta.get('options')}, "
+        made_with = meta.get("options")
+        if isinstance(made_with, dict):   # files written before the option existed scanned "auto"
+            made_with = made_with | {"direction": made_with.get("direction", "auto")}
+        if made_with != options.as_dict():
+            raise FileFormatError(session.traces_path, f"was made with options {made_with}, "
                                   f"not {options.as_dict()}; run without --resume to start again")
         tables.append(table)
         done = {tuple(x) for x in meta.get("frames_done", [])}
@@ -185,7 +199,8 @@ def _run_job(job: _Job):
     from scanrig.laser.spots import detect_spots
     from scanrig.laser.stripes import detect_stripe
 
-    detect = detect_spots if job.options.mode == "spot" else detect_stripe
+    options = job.options
+    detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
     path = job.dark
     try:
         dark = None if job.dark is None else read_image(job.dark)
@@ -195,8 +210,8 @@ def _run_job(job: _Job):
             if img.shape != job.shape or str(img.dtype) != job.dtype:
                 return (path, f"frame is {_describe(img.shape, img.dtype)} but {Path(job.reference).name} of "
                               f"camera {job.camera!r} is {_describe(job.shape, job.dtype)}")
-            out.append(detect(img, color=job.options.color, dark=dark, roi=job.options.roi,
-                              k_detect=job.options.k_detect, camera=job.camera, frame=stem))
+            out.append(detect(img, color=options.color, dark=dark, roi=options.roi,
+                              k_detect=options.k_detect, camera=job.camera, frame=stem, **scan))
     except FileFormatError as exc:
         return (str(exc.path), exc.reason)
     except InputError as exc:
