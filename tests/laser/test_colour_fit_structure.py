@@ -8,7 +8,7 @@ through the trial widths' χ² (:func:`scanrig.laser.colour_fit._refined_width`)
 
 import numpy as np
 
-from scanrig.laser import colour_fit, stripes
+from scanrig.laser import colour_fit, fit, stripes
 
 from .colour_synth import stripe_frames
 
@@ -56,3 +56,32 @@ def test_the_refined_width_keeps_a_trial_width_at_the_ends_and_where_the_chi2_is
     best = np.array([0, k - 1, 3])
     width = colour_fit._refined_width(chi2, best)
     np.testing.assert_array_equal(width, colour_fit._START_WIDTHS[best])
+
+
+def test_the_structured_solve_matches_the_general_one_with_and_without_held_parameters(monkeypatch):
+    args, options = _plain_fit_arguments(monkeypatch, 3)
+    y, usable, noise, model, p0, lower, upper, n_axes, normal = args
+    n, m = y.shape[:2]
+    y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
+    mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n)).astype(float)
+    _, hess, grad = normal(np.ascontiguousarray(p0.T), y_minor, mask)
+    lam = np.random.default_rng(0).uniform(1e-4, 1e2, n)
+    held = np.zeros(grad.shape, bool)
+    held[1, ::3] = held[2, ::5] = held[7, ::7] = True  # a width, a laser amplitude, a background
+    for h, g in ((hess, grad), fit._held(hess, grad, held)):
+        general = fit._damped_solve(h, g, lam)
+        structured = fit._damped_solve(h, g, lam, colour_fit._solve_1d)
+        assert np.all(np.isfinite(general))
+        np.testing.assert_allclose(structured, general, rtol=1e-8, atol=1e-10 * np.abs(general).max())
+
+
+def test_the_structured_solve_gives_nan_where_the_system_is_not_positive_definite():
+    rng = np.random.default_rng(1)
+    jac = rng.normal(size=(8, 40, 2))
+    jac[[3, 4, 6, 7]] = 0.0  # only the first channel has levels: no channel meets another's
+    hess = np.einsum("imn,jmn->ijn", jac, jac)
+    hess[1, 1, 1] = -1.0  # the second is indefinite
+    grad = rng.normal(size=(8, 2))
+    diag = hess.reshape(64, 2)[::9] + 1e-9
+    step = colour_fit._solve_1d(hess, grad, diag)
+    assert np.all(np.isfinite(step[:, 0])) and np.all(np.isnan(step[:2, 1]))

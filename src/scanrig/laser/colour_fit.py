@@ -116,7 +116,7 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     # fewer evaluations
     p0[:, 0] = np.nan_to_num(plateau["centre"])
     res, cov = _fit(y, usable, noise, _model_1d(x, noise), p0, lower, upper, 1, _normal_1d(x, noise, (lower, upper)),
-                    lever=_lever_1d(x, noise))
+                    lever=_lever_1d(x, noise), solve=_solve_1d)
     p, var = res.params, cov[:, 0, 0]
     max_shift_px = np.broadcast_to(max_shift_px, var.shape)
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
@@ -339,14 +339,14 @@ def _plain_start(y, usable, noise, laser, trial, n_axes):
 
 
 def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=12, statistical=True,
-         clusters=None, lever=None):
+         clusters=None, lever=None, solve=None):
     """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` from ``p0 (n, P)`` (``normal``:
-    the model's normal equations, ``n_iter`` the most iterations, see
+    the model's normal equations, ``solve`` their solver, ``n_iter`` the most iterations, see
     :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance ``(n, P, P)`` of the
     parameters, inflated where the model leaves a misfit that pulls the centre (its first ``n_axes``
     parameters, :func:`~scanrig.laser.fit.centre_misfit`, with the pixels' ``clusters (n, M)`` of
     correlated errors, the three channels of a pixel in its cluster; or, given the model's ``lever``
-    (:func:`_lever_1d`), from the centre's rows of ``(JᵀJ)⁻¹ Jᵀ`` it makes, without the dense Jacobian).
+    (:func:`_lever_1d`), from the centre's row of ``(JᵀJ)⁻¹ Jᵀ`` it makes, without the dense Jacobian).
     With ``statistical``, a fit stops by fit_batch's statistical rule (the whitened pixels have unit
     variance), else by its relative tolerance."""
     n, m = y.shape[:2]
@@ -354,14 +354,14 @@ def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=
     y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
     mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
     res = fit_batch(model, y_minor, mask, p0, lower, upper, n_iter, minor=True, normal=normal,
-                    noise_var=np.ones(n) if statistical else None)
+                    noise_var=np.ones(n) if statistical else None, solve=solve)
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
     if lever is not None:  # whitened pixels: the cost is χ², and unit variance where fitted
         misfit = np.flatnonzero(good)[_misfits(res.chi2_unit[good], np.maximum(res.dof[good], 1))]
         if misfit.size:
-            a, r = lever(res.params[misfit].T, res.info_inv[misfit, 0].T, y_minor[:, misfit], mask[:, misfit])
-            cov[misfit] *= lever_misfit(a[None], r, mask[:, misfit].astype(float))[:, None, None]
+            cov[misfit] *= lever(res.params[misfit].T, res.info_inv[misfit, 0].T, y_minor[:, misfit],
+                                 mask[:, misfit])[:, None, None]
     elif good.any():
         pick = slice(None) if good.all() else good  # views, not copies, where every fit is usable
         cov[pick] *= centre_misfit(res.jac.transpose(2, 1, 0)[..., pick], res.info_inv[pick],
@@ -386,11 +386,12 @@ def _model_1d(x: np.ndarray, noise: np.ndarray):
 
 
 def _lever_1d(x: np.ndarray, noise: np.ndarray):
-    """The centre's row of ``(JᵀJ)⁻¹ Jᵀ`` and the residuals of :func:`_model_1d` from its profile (the
-    dense ``(8, 3 W)`` Jacobian is never built): on channel ``c`` the Jacobian's columns for
+    """:func:`~scanrig.laser.fit.centre_misfit`'s factor of :func:`_model_1d`'s centre on whitened
+    windows, from the centre's row ``a`` of ``(JᵀJ)⁻¹ Jᵀ`` built from the profile (the dense
+    ``(8, 3 W)`` Jacobian is never built): on channel ``c`` the Jacobian's columns for
     ``(x0, s, a_c, b_c)`` are ``(a_c ∂g/∂x0, a_c ∂g/∂s, g, 1) / σ_c``. ``p (8, k)`` the parameters,
     ``row (8, k)`` the centre's row of ``(JᵀJ)⁻¹``, ``y (3 W, k)`` the whitened windows and
-    ``usable (3 W, k)`` their fitted pixels -> ``a, r (3 W, k)``, zero on the pixels not fitted."""
+    ``usable (3 W, k)`` their fitted pixels -> ``(k,)``."""
     edges = _edges(x)
     w_px = x.size
     inv_noise = (1.0 / np.asarray(noise, float))[:, None, None]  # (3, 1, 1)
@@ -407,7 +408,7 @@ def _lever_1d(x: np.ndarray, noise: np.ndarray):
         w = usable.reshape(3, w_px, k)
         a *= w
         r *= w
-        return a.reshape(3 * w_px, k), r.reshape(3 * w_px, k)
+        return lever_misfit(a.reshape(1, 3 * w_px, k), r.reshape(3 * w_px, k), usable.astype(float))
 
     return lever
 
@@ -488,6 +489,39 @@ def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.nd
         return np.einsum("cmn,cmn->n", r, r), hess, grad
 
     return normal
+
+
+def _solve_1d(hess: np.ndarray, grad: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """Solution ``δ (8, k)`` of the normal equations of :func:`_model_1d` (``hess (8, 8, k)``, lower
+    triangle read, with the diagonal ``diag (8, k)``, and ``grad (8, k)``) by eliminating each
+    channel's amplitude and background, which meet no other channel's: per channel a 2 × 2 block
+    ``D_c``, then the 2 × 2 system of the centre and width, ``(H_pp − Σ_c B_c D_c⁻¹ B_cᵀ) δ_p =
+    g_p − Σ_c B_c D_c⁻¹ g_c``, then ``δ_c = D_c⁻¹ (g_c − B_cᵀ δ_p)`` (about a third of the operations
+    of the general factorisation). NaN where a system is not positive definite."""
+    amp, bg = slice(2, 5), slice(5, 8)
+    d_aa, d_bb, d_ab = diag[amp], diag[bg], hess[5 + np.arange(3), 2 + np.arange(3)]  # (3, k) each
+    b_xa, b_sa, b_xb, b_sb = hess[amp, 0], hess[amp, 1], hess[bg, 0], hess[bg, 1]  # B_c, (3, k) each
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_det = np.where(d_aa * d_bb - d_ab * d_ab > 0, 1.0 / (d_aa * d_bb - d_ab * d_ab), np.nan)
+        # E_c = B_c D_c⁻¹, rows x0 and s, columns a_c and b_c
+        e_xa, e_xb = (b_xa * d_bb - b_xb * d_ab) * inv_det, (b_xb * d_aa - b_xa * d_ab) * inv_det
+        e_sa, e_sb = (b_sa * d_bb - b_sb * d_ab) * inv_det, (b_sb * d_aa - b_sa * d_ab) * inv_det
+        g_a, g_b = grad[amp], grad[bg]
+        s_xx = diag[0] - (e_xa * b_xa + e_xb * b_xb).sum(axis=0)
+        s_sx = hess[1, 0] - (e_sa * b_xa + e_sb * b_xb).sum(axis=0)
+        s_ss = diag[1] - (e_sa * b_sa + e_sb * b_sb).sum(axis=0)
+        r_x = grad[0] - (e_xa * g_a + e_xb * g_b).sum(axis=0)
+        r_s = grad[1] - (e_sa * g_a + e_sb * g_b).sum(axis=0)
+        det = s_xx * s_ss - s_sx * s_sx
+        det = np.where((det > 0) & (s_xx > 0), det, np.nan)
+        step = np.empty_like(grad)
+        step[0] = (s_ss * r_x - s_sx * r_s) / det
+        step[1] = (s_xx * r_s - s_sx * r_x) / det
+        rest_a = g_a - b_xa * step[0] - b_sa * step[1]
+        rest_b = g_b - b_xb * step[0] - b_sb * step[1]
+        step[amp] = (d_bb * rest_a - d_ab * rest_b) * inv_det
+        step[bg] = (d_aa * rest_b - d_ab * rest_a) * inv_det
+    return step
 
 
 def _levels(s_gg, s_g, s_w, s_gy, s_y):
