@@ -11,7 +11,7 @@ from hypothesis import given, settings as hypothesis_settings, strategies as st
 
 from scanrig.errors import InputError
 from scanrig.surface.memory import keep_freed_memory
-from scanrig.surface.network import HeightFieldNets, _Tanh
+from scanrig.surface.network import HeightFieldNets
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
                                       _heldout_prediction, _output_layer_irls, _size_batches,
@@ -75,15 +75,6 @@ def test_noise_scale_is_measured_on_the_network_as_trained(seed):
     upper = np.array([h["sigma_upper"][0] for h in fits.history])
     # the bootstrap bound's own spread at 4096 points is a few per cent
     assert upper.max() < 1.15 * SIGMA, upper / SIGMA
-
-
-def test_tanh_matches_torch_with_first_and_second_derivatives():
-    x = torch.linspace(-8, 8, 2001, dtype=torch.float64, requires_grad=True)
-    torch.testing.assert_close(_Tanh.apply(x), torch.tanh(x), atol=1e-15, rtol=0)
-    assert torch.autograd.gradcheck(_Tanh.apply, (x[::50].detach().requires_grad_(),))
-    assert torch.autograd.gradgradcheck(_Tanh.apply, (x[::50].detach().requires_grad_(),))
-    x32 = torch.linspace(-8, 8, 100_001)
-    assert (_Tanh.apply(x32) - torch.tanh(x32)).abs().max() < 4e-7  # float32 rounding at unit scale
 
 
 def _step_sizes(opt, epochs):

@@ -92,15 +92,20 @@ def inlier_posterior(s: np.ndarray, neighbours: np.ndarray, r: float, window: fl
         raise InputError(f"window must be > 1, got {window}")
     if not r > 0.0:
         raise InputError(f"r must be > 0, got {r}")
-    real = neighbours >= 0
-    s_nb = np.take_along_axis(s, np.maximum(neighbours, 0).reshape(len(s), -1), axis=1).reshape(neighbours.shape)
-    s_nb = np.where(real, s_nb, np.nan)
-    count = np.maximum(np.sum(real & np.isfinite(s_nb), axis=2), 1)
+    # each point's class, gathered at once over its neighbours as one byte: 0 not counted (no
+    # residual), 1 inside the band, 2 and 3 in the window below and above it, 4 beyond the
+    # window (not comparisons of gathered (C, n, k) residuals, 1.7-2x the time)
+    n_charts, n_max, _ = neighbours.shape
     with np.errstate(invalid="ignore"):
-        f_in = np.sum(np.abs(s_nb) <= r, axis=2) / count
-        beyond_low = np.sum((s_nb < -r) & (s_nb >= -window * r), axis=2)
-        beyond_high = np.sum((s_nb > r) & (s_nb <= window * r), axis=2)
-    density = np.where(s < 0, beyond_low, beyond_high) / (count * (window - 1.0) * r)
+        kind = np.select([~np.isfinite(s), np.abs(s) <= r, (s < -r) & (s >= -window * r), (s > r) & (s <= window * r)],
+                         [0, 1, 2, 3], 4).astype(np.int8)
+    kind = np.pad(kind, ((0, 0), (0, 1)))  # column n_max: "no neighbour" (-1) counts nowhere
+    nb_kind = np.take_along_axis(kind, np.where(neighbours >= 0, neighbours, n_max).reshape(n_charts, -1),
+                                 axis=1).reshape(neighbours.shape)
+    count = np.maximum(np.count_nonzero(nb_kind, axis=2), 1)
+    f_in = np.count_nonzero(nb_kind == 1, axis=2) / count
+    density = np.where(s < 0, np.count_nonzero(nb_kind == 2, axis=2),
+                       np.count_nonzero(nb_kind == 3, axis=2)) / (count * (window - 1.0) * r)
     inlier = f_in * np.exp(-0.5 * s * s) / _SQRT_2PI
     with np.errstate(invalid="ignore"):
         post = np.where(density > 0, inlier / (inlier + density), 1.0)

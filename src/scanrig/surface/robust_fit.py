@@ -954,19 +954,20 @@ def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, root_weight: torch.Ten
     normal = torch.zeros(n_copies, size + 2, size + 2, dtype=aug.dtype, device=aug.device).index_add_(
         0, owner, aug @ aug.transpose(1, 2))
     gram, rhs = normal[:, :size + 1, :size + 1], normal[:, :size + 1, size + 1]
-    ridge = 1e-9 * gram.diagonal(dim1=1, dim2=2).sum(dim=1).clamp(min=1e-12)
-    gram = gram + ridge[:, None, None] * torch.eye(size + 1, dtype=gram.dtype, device=gram.device)
+    diagonal = gram.diagonal(dim1=1, dim2=2)
+    diagonal.add_(1e-9 * diagonal.sum(dim=1, keepdim=True).clamp(min=1e-12))
     return torch.linalg.solve(gram, rhs)
 
 
 def _output(feats: torch.Tensor, coef: torch.Tensor) -> torch.Tensor:
     """Output layer per block: features (V, H, L), coefficients (V, H + 1) -> heights (V, L) float32.
 
-    A broadcast product and sum: a batched matrix-vector ``bmm`` and its backward took 1.7x as
-    long (measured, torch 2.13 on CPU).
+    A batched matrix-vector product: with its backward, half the time of a broadcast product
+    and sum over the units, which forms a (V, H, L) temporary (measured, torch 2.13 on CPU,
+    one thread, 36 blocks of 2798 points).
     """
     coef = coef.float()
-    return (feats * coef[:, :-1, None]).sum(dim=1) + coef[:, -1:]
+    return torch.baddbmm(coef[:, -1:, None], coef[:, None, :-1], feats)[:, 0]
 
 
 def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, cuts: dict) -> torch.Tensor:
