@@ -56,16 +56,41 @@ def stripe_frames(rng: np.random.Generator, shape=(480, 640), overexposure: floa
         True centre of the beam on each row, px.
     """
     sensor = Sensor()
-    full_e = sensor.full_well_e
     albedo = printed_dots(shape, rng)
-    h, w = shape
-    centre_u = rng.uniform(0.35, 0.45) * w + SLOPE * np.arange(h)
-    beam = integrated(np.arange(w, dtype=float)[None, :], centre_u[:, None], BEAM_SIGMA_PX)
-    laser_e = overexposure * full_e * beam * albedo / PAPER_ALBEDO
-    scene_e = PAPER_LEVEL * full_e * albedo / PAPER_ALBEDO
-    on = colour_frame(scene_e, laser_e, sensor, response, rng)
-    off = colour_frame(scene_e, np.zeros(shape), sensor, response, rng)
+    centre_u = rng.uniform(0.35, 0.45) * shape[1] + SLOPE * np.arange(shape[0])
+    on = _stripe_frame(centre_u, albedo, overexposure, sensor, response, rng)
+    off = _stripe_frame(None, albedo, overexposure, sensor, response, rng)
     return on, off, centre_u
+
+
+def stripe_sweep(rng: np.random.Generator, n_frames: int, shape=(480, 640), n_dots: int = 40,
+                 overexposure: float = 8.0, response: ColourResponse = RESPONSE):
+    """Laser-on frames of the stripe swept across the fixed scene (from 10 % to 90 % of the width,
+    evenly), one laser-off frame, and each frame's true centres.
+
+    Returns
+    -------
+    on : list of (H, W, 3) uint8 arrays
+    off : (H, W, 3) uint8 array
+    centre_u : list of (H,) float arrays
+    """
+    sensor = Sensor()
+    albedo = printed_dots(shape, rng, n_dots)
+    h, w = shape
+    centre_u = [(0.1 + 0.8 * k / (n_frames - 1)) * w + SLOPE * np.arange(h) for k in range(n_frames)]
+    on = [_stripe_frame(c, albedo, overexposure, sensor, response, rng) for c in centre_u]
+    return on, _stripe_frame(None, albedo, overexposure, sensor, response, rng), centre_u
+
+
+def _stripe_frame(centre_u, albedo, overexposure, sensor, response, rng):
+    """The colour frame of the printed paper ``albedo`` (H, W) lit by the stripe through ``centre_u``
+    (H,) px, or laser-off when it is None."""
+    full_e = sensor.full_well_e
+    scene_e = PAPER_LEVEL * full_e * albedo / PAPER_ALBEDO
+    if centre_u is None:
+        return colour_frame(scene_e, np.zeros(albedo.shape), sensor, response, rng)
+    beam = integrated(np.arange(albedo.shape[1], dtype=float)[None, :], centre_u[:, None], BEAM_SIGMA_PX)
+    return colour_frame(scene_e, overexposure * full_e * beam * albedo / PAPER_ALBEDO, sensor, response, rng)
 
 
 def spot_frames(rng: np.random.Generator, shape=(480, 640), overexposure: float = 8.0,

@@ -102,10 +102,10 @@ def test_stripes_scanned_along_rows_only_when_asked(stripe_session, capsys):
     assert "direction 'rows' applies to stripes; spot mode takes no direction" in capsys.readouterr().err
 
 
-def test_resume_of_a_file_without_direction_takes_auto(session):
+def test_resume_of_a_file_from_before_the_later_options_takes_their_defaults(session):
     first = detect_session(session)
     options = DetectOptions("spot", "red").as_dict()
-    del options["direction"]
+    del options["direction"], options["dark"]
     write_traces(session / "traces.parquet", first, {"options": options,
                                                      "frames_done": [[c, f"f{k}"] for c in CAMERAS for k in range(N_FRAMES)]})
     assert detect_session(session, resume=True).equals(first)

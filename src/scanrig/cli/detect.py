@@ -24,6 +24,9 @@ def command(
     direction: Annotated[str, typer.Option(
         help="Stripes: scan along rows, columns, or auto (chosen per block). A fixed laser plane "
              "seen steeply (a single-camera scanner) is best scanned along rows.")] = "auto",
+    dark: Annotated[str, typer.Option(
+        help="Laser-off frame of a camera: its scan/<camera>/dark.<ext> (file), or where it has none the "
+             "median of its scan frames (median: a laser swept over a fixed scene).")] = "file",
 ):
     """Detect laser spots or stripes in every scan frame, with sub-pixel centres and their sigma.
 
@@ -47,7 +50,7 @@ def command(
         if len(roi_box) != 4:
             raise InputError(f"--roi must be four integers u0,v0,u1,v1, got {roi!r}")
     sess = Session(session)
-    options = options_from_session(sess, mode, color, roi_box, k_detect, direction)
+    options = options_from_session(sess, mode, color, roi_box, k_detect, direction, dark)
     stage = f"detecting {options.mode}s"
     with stage_progress() as progress:
         table = detect_session(sess.root, options, workers=workers, resume=resume,

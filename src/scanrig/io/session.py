@@ -279,6 +279,13 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
+def describe_image(shape: tuple[int, ...], dtype) -> str:
+    """``"1280x1024 8-bit grey"``: an image's size, bit depth and kind, for messages."""
+    h, w = shape[:2]
+    bits = 8 if str(dtype) == "uint8" else 16
+    return f"{w}x{h} {bits}-bit {'colour' if len(shape) == 3 else 'grey'}"
+
+
 def write_image(path: str | Path, image: np.ndarray) -> None:
     """Write an 8- or 16-bit grey or RGB image atomically (format from the suffix; PNG is lossless)."""
     import cv2

@@ -18,13 +18,20 @@ import numpy as np
 import pyarrow as pa
 
 from scanrig.errors import FileFormatError, InputError
-from scanrig.io.session import Session, natural_key, read_image
+from scanrig.io.object_poses import object_poses_path
+from scanrig.io.session import Session, describe_image, natural_key, read_image
+from scanrig.laser.median_dark import median_dark
 from scanrig.laser.image import LASER_COLORS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
 #: Scan directions of stripe detection (:func:`scanrig.laser.stripes.detect_stripe`'s ``direction``).
 DIRECTIONS = ("auto", "rows", "columns")
+#: Where a camera's laser-off frame comes from: its ``scan/<camera>/dark.<ext>`` only ("file"), or,
+#: where it has none, the median of its scan frames ("median", :mod:`scanrig.laser.median_dark`).
+DARK_SOURCES = ("file", "median")
+#: Options added after ``traces.parquet`` files were first written, with the value such files used.
+_LATER_OPTIONS = {"direction": "auto", "dark": "file"}
 #: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
 _CHUNK_FRAMES = 8
 
@@ -45,6 +52,9 @@ class DetectOptions:
         Stripe mode: the lines a stripe is scanned along ("auto": chosen per block). A fixed
         laser plane seen steeply (most single-camera scanners) is best scanned along rows only, so
         that no texture edge is taken along columns where the laser is not.
+    dark : {"file", "median"}
+        "median": a camera without ``scan/<camera>/dark.<ext>`` takes the per-pixel median of its
+        scan frames as its laser-off frame (a laser swept over a fixed scene, not a moving object).
     """
 
     mode: str = "spot"
@@ -52,6 +62,7 @@ class DetectOptions:
     roi: tuple[int, int, int, int] | None = None
     k_detect: float = 6.0
     direction: str = "auto"
+    dark: str = "file"
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -64,25 +75,28 @@ class DetectOptions:
             raise InputError(f"direction must be one of {DIRECTIONS}, got {self.direction!r}")
         if self.mode == "spot" and self.direction != "auto":
             raise InputError(f"direction {self.direction!r} applies to stripes; spot mode takes no direction")
+        if self.dark not in DARK_SOURCES:
+            raise InputError(f"dark must be one of {DARK_SOURCES}, got {self.dark!r}")
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),
-                "k_detect": self.k_detect, "direction": self.direction}
+                "k_detect": self.k_detect, "direction": self.direction, "dark": self.dark}
 
 
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
-                         roi=None, k_detect: float = 6.0, direction: str = "auto") -> DetectOptions:
+                         roi=None, k_detect: float = 6.0, direction: str = "auto", dark: str = "file") -> DetectOptions:
     """Options with ``mode`` and ``color`` defaulting to ``laser_mode`` / ``laser_color`` of session.toml."""
     settings = session.settings()
     return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
-                         None if roi is None else tuple(int(x) for x in roi), k_detect, direction)
+                         None if roi is None else tuple(int(x) for x in roi), k_detect, direction, dark)
 
 
 @dataclass
 class _Job:
     camera: str
     frames: list[tuple[str, str]]  # (stem, path)
-    dark: str | None
+    dark_path: str | None
+    dark_image: np.ndarray | None  # the median of the camera's frames (options.dark == "median")
     shape: tuple[int, ...]
     dtype: str
     reference: str  # the file that fixed shape and dtype
@@ -125,6 +139,9 @@ def detect_session(
     FileFormatError
         Naming the file: unreadable image, wrong bit depth, a frame whose size or bit depth differs
         from the camera's other frames or its dark frame, a traces file made with other options.
+    InputError
+        ``options.dark == "median"`` where the object moves (``scan/object_poses.csv``) or a camera
+        without a dark frame has fewer than :data:`~scanrig.laser.median_dark.MIN_FRAMES` frames.
     """
     session = Session(root)
     options = options or options_from_session(session)
@@ -135,13 +152,16 @@ def detect_session(
     if resume and session.traces_path.exists():
         table, meta = read_traces(session.traces_path)
         made_with = meta.get("options")
-        if isinstance(made_with, dict):   # files written before the option existed scanned "auto"
-            made_with = made_with | {"direction": made_with.get("direction", "auto")}
+        if isinstance(made_with, dict):
+            made_with = made_with | {k: v for k, v in _LATER_OPTIONS.items() if k not in made_with}
         if made_with != options.as_dict():
             raise FileFormatError(session.traces_path, f"was made with options {made_with}, "
                                   f"not {options.as_dict()}; run without --resume to start again")
         tables.append(table)
         done = {tuple(x) for x in meta.get("frames_done", [])}
+    if options.dark == "median" and object_poses_path(session.root).exists():
+        raise InputError(f"{object_poses_path(session.root)}: the object moves between frames, so the median of "
+                         "its frames is not a laser-off frame; take one (scan/<camera>/dark.<ext>) instead")
     jobs = _jobs(session, cameras, options, done)
     total = sum(len(j.frames) for j in jobs)
     finished = sorted(done)
@@ -188,9 +208,10 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
             continue
         reference = dark or paths[next(iter(paths))]
         img = read_image(reference)
+        median = median_dark(list(paths.values()), cam) if dark is None and options.dark == "median" else None
         for k in range(0, len(todo), _CHUNK_FRAMES):
-            jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], None if dark is None else str(dark), img.shape,
-                             str(img.dtype), str(reference), options))
+            jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], None if dark is None else str(dark), median,
+                             img.shape, str(img.dtype), str(reference), options))
     return jobs
 
 
@@ -201,15 +222,15 @@ def _run_job(job: _Job):
 
     options = job.options
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
-    path = job.dark
+    path = job.dark_path
     try:
-        dark = None if job.dark is None else read_image(job.dark)
+        dark = job.dark_image if job.dark_path is None else read_image(job.dark_path)
         out = []
         for stem, path in job.frames:
             img = read_image(path)
             if img.shape != job.shape or str(img.dtype) != job.dtype:
-                return (path, f"frame is {_describe(img.shape, img.dtype)} but {Path(job.reference).name} of "
-                              f"camera {job.camera!r} is {_describe(job.shape, job.dtype)}")
+                return (path, f"frame is {describe_image(img.shape, img.dtype)} but {Path(job.reference).name} of "
+                              f"camera {job.camera!r} is {describe_image(job.shape, job.dtype)}")
             out.append(detect(img, color=options.color, dark=dark, roi=options.roi,
                               k_detect=options.k_detect, camera=job.camera, frame=stem, **scan))
     except FileFormatError as exc:
@@ -217,12 +238,6 @@ def _run_job(job: _Job):
     except InputError as exc:
         return (path, str(exc))
     return pa.concat_tables(out) if out else empty_table()
-
-
-def _describe(shape, dtype) -> str:
-    h, w = shape[:2]
-    bits = 8 if str(dtype) == "uint8" else 16
-    return f"{w}x{h} {bits}-bit {'colour' if len(shape) == 3 else 'grey'}"
 
 
 def _write(session: Session, cameras: list[str], tables: list[pa.Table], finished, options) -> pa.Table:
