@@ -376,7 +376,7 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     for step_count in range(n_iter + 1):
         # a parameter on its bound that the cost pushes outwards is held there (projected step)
         held = ((pa <= lower) & (grad <= 0.0)) | ((pa >= upper) & (grad >= 0.0))
-        step = _damped_solve(*_held(hess, grad, held), lam, solve) if held.any() else _damped_solve(hess, grad, lam, solve)
+        step = _damped_solve(*(_held(hess, grad, held) if held.any() else (hess, grad)), lam, solve)
         leave = converged | (lam >= 1e10)
         if statistical:  # 1 / curvature within _STEP_SCALES (the longest where it is not positive)
             step *= np.maximum(1.0 / np.maximum(curvature, 1.0 / _STEP_SCALES[1]), _STEP_SCALES[0])
