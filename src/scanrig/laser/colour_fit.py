@@ -400,15 +400,19 @@ def _lever_1d(x: np.ndarray, noise: np.ndarray):
         k = p.shape[1]
         prof = np.empty((3, w_px, k))
         _profile(edges, p[0], p[1], prof)  # g, ∂g/∂x0, ∂g/∂s
-        amp = p[2:5, None] * inv_noise  # (3, 1, k), whitened
+        amp = p[2:5, None] * inv_noise  # (3, 1, k), whitened; the (3, k) factors first, then one pass each
         a = amp * (row[0] * prof[1] + row[1] * prof[2])
-        a += (row[2:5, None] * prof[0] + row[5:8, None]) * inv_noise
-        r = y.reshape(3, w_px, k) - amp * prof[0]
+        a += (row[2:5, None] * inv_noise) * prof[0]
+        a += row[5:8, None] * inv_noise
+        r = amp * prof[0]
+        np.subtract(y.reshape(3, w_px, k), r, out=r)
         r -= p[5:8, None] * inv_noise
-        w = usable.reshape(3, w_px, k)
+        w = usable.reshape(3 * w_px, k).astype(float)
+        a = a.reshape(3 * w_px, k)
         a *= w
+        r = r.reshape(3 * w_px, k)
         r *= w
-        return lever_misfit(a.reshape(1, 3 * w_px, k), r.reshape(3 * w_px, k), usable.astype(float))
+        return lever_misfit(a[None], r, w)
 
     return lever
 
