@@ -585,15 +585,20 @@ def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarr
     w = usable.transpose(0, 2, 1).astype(float)  # (n, 3, M)
     yy = y.transpose(0, 2, 1)
     wy = w * yy
-    # the sums over the pixels, (n, 3, k), or (n, 3, 1) where they do not depend on the width
-    s_w, s_y, s_yy = w.sum(-1)[..., None], wy.sum(-1)[..., None], (wy * yy).sum(-1)[..., None]
-    s_g, s_gg, s_gy = w @ trial.T, w @ (trial * trial).T, wy @ trial.T
+    # the sums over the pixels by matrix products, (n, 3, k), or (n, 3, 1) where they do not depend
+    # on the width
+    with_ones = np.vstack([trial, np.ones(trial.shape[1])]).T  # (M, k + 1)
+    s_g, s_w = np.split(w @ with_ones, [-1], axis=-1)
+    s_gy, s_y = np.split(wy @ with_ones, [-1], axis=-1)
+    s_gg = w @ (trial * trial).T
+    s_yy = np.einsum("ncm,ncm->nc", wy, yy)[..., None]
     amp, _, solvable = _levels(s_gg, s_g, s_w, s_gy, s_y)
     amp = np.where(solvable, amp, 0.0)  # a channel with no usable flank: 0
     with np.errstate(divide="ignore", invalid="ignore"):
         bg = np.where(s_w > 0, (s_y - amp * s_g) / np.maximum(s_w, 1e-300), 0.0)
-    # the weighted squared residual of each linear fit, from the same sums (no (n, 3, k, M) array)
-    resid = s_yy - 2.0 * (amp * s_gy + bg * s_y) + amp**2 * s_gg + 2.0 * amp * bg * s_g + bg**2 * s_w
+    # the weighted squared residual of each linear fit, from the same sums (no (n, 3, k, M) array):
+    # b is the optimum for a, and a the joint optimum or 0, so the cross terms cancel
+    resid = s_yy - amp * s_gy - bg * s_y
     chi2 = (resid / noise[None, :, None] ** 2).sum(axis=1)  # (n, k)
     best = np.argmin(chi2, axis=1)  # (n,)
     pick = np.arange(y.shape[0])
