@@ -242,8 +242,9 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     run = (offs[None, :] < right[:, None]) & (offs[None, :] > -left[:, None])  # (n, W)
     m = others_usable & run[:, :, None]  # (n, W, 2)
     count = m.sum(axis=1)  # (n, 2)
-    mean = (others * m).sum(axis=1) / np.maximum(count, 1)
-    chi2 = (((others - mean[:, None, :]) ** 2 * m).sum(axis=1)) / others_noise**2
+    weight = m.astype(np.float64)
+    s_y, s_yy = np.einsum("nwc,nwc->nc", others, weight), np.einsum("nwc,nwc->nc", others * others, weight)
+    chi2 = (s_yy - s_y * s_y / np.maximum(count, 1)) / others_noise**2  # Σ (y - mean)² over the run
     dof = np.maximum(count - 1, 0)
     applies &= np.all(chi2 <= dof + _CROSSTALK_CHI2_SIGMAS * np.sqrt(2.0 * dof), axis=1)
     return {"centre": 0.5 * (edges[0] + edges[1]), "var": 0.25 * var, "half_length": 0.5 * (edges[0] - edges[1]),
