@@ -78,16 +78,18 @@ def test_edges_without_partial_pixels_are_known_to_a_pixel():
     assert out["half_length"][0] == pytest.approx(3.0)
 
 
-def test_edges_with_partial_pixels_are_interpolated_to_their_noise():
+def test_edges_with_unclipped_partial_pixels_keep_the_pixel_uncertainty():
     """Pixels 4 and 11 at 80 % of the rise, unclipped: each edge where the laser crosses the half
-    level between them and the background, 3/8 px out from them; its σ only the noise through the
-    interpolation, far below the pixel's 1/sqrt(12)."""
+    level between them and the background, 3/8 px out from them. The run clipped, so the beam's
+    level over it is unknown (at least the clip), and with it the share of pixel 4 it lights: each
+    edge keeps 1/12 px² besides the noise through the interpolation."""
     out = unit_case(inner_share=0.8)
     assert out["applies"][0]
     assert out["centre"][0] == pytest.approx(-0.5)
     assert out["half_length"][0] == pytest.approx(3.5 + 3.0 / 8.0)
     slope_dn = 0.8 * (CLIP_DN - BG_DN)
-    assert np.sqrt(out["var"][0]) < 3.0 * NOISE_DN / slope_dn < np.sqrt(1.0 / 12.0)
+    noise_var = (NOISE_DN / slope_dn) ** 2 * ((0.5 - 0.0) ** 2 + (0.8 - 0.5) ** 2) / 0.8**2
+    assert out["var"][0] == pytest.approx(2.0 * (1.0 / 12.0 + noise_var) / 4.0)
 
 
 def test_a_partial_pixel_beyond_a_clipped_one_keeps_the_pixel_uncertainty():

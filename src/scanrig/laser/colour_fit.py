@@ -24,8 +24,10 @@ to the channels (:mod:`scanrig.laser.reflectance`), and the step is kept where a
 
 Some webcams leave nothing for that model: their colour matrix holds the other channels flat (at 0)
 under the clipped run and the laser channel jumps from the background to the clip within a pixel.
-A stripe candidate whose run is flat in the other channels and has such steep edges is centred on
-the midpoint of the run's two edges instead (:func:`plateau_midpoint`).
+A stripe candidate whose run is flat in the other channels (or they sit at their black level) and
+has such steep edges is centred on the midpoint of the run's two edges instead
+(:func:`plateau_midpoint`). A clipped pixel is censored, not void: a fit whose laser channel stays
+well below the clip at the run's clipped middle is dropped (:func:`_below_clip`).
 """
 
 from __future__ import annotations
@@ -95,9 +97,10 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     dict of (n_ok,) arrays
         ``index`` (into the input), ``centre`` (px along the line), ``var`` (px²), ``peak``
         (laser channel's amplitude, DN), ``width_px``, ``snr`` (peak over the laser channel's noise).
-        A candidate whose run is flat in the other channels and has steep edges takes the
-        centre and variance of :func:`plateau_midpoint`, ``peak`` = its ``rise`` and ``width_px``
-        = its ``half_length``, whether or not the colour fit converged.
+        A candidate whose run is flat in the other channels (or they sit at their black level) and
+        has steep edges takes the centre and variance of :func:`plateau_midpoint`, ``peak`` = its
+        ``rise`` and ``width_px`` = its ``half_length``, whether or not the colour fit converged.
+        A fit contradicted by the clipped middle of its run (:func:`_below_clip`) is dropped.
     """
     offs = np.arange(-half, half + 1)
     along = pos[:, None] + offs  # (n, W)
@@ -107,8 +110,10 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     lower, upper = _bounds(colour, half, 1)
     x = offs.astype(float)
     laser = colour.laser_channel
-    raw = _laser_raw(colour, across, along) if rows else _laser_raw(colour, along, across)
-    plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable, laser, axis=2),
+    frame = _raw(colour, across, along) if rows else _raw(colour, along, across)  # (n, W, 3)
+    raw = frame[..., laser]
+    # a pixel at 0 DN is censored at the black level (its value unknown below it): out of the test
+    plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable & (frame > 0), laser, axis=2),
                                np.delete(noise, laser), noise[laser], colour.clip_level[laser])
     p0 = _plain_start(y, usable, noise, laser, trial, 1)
     # the run's middle from its two edges is a closer start than its middle pixel (where it has both):
@@ -119,9 +124,13 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
                     lever=_lever_1d(x, noise), solve=_solve_1d)
     p, var = res.params, cov[:, 0, 0]
     max_shift_px = np.broadcast_to(max_shift_px, var.shape)
-    ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0)
+    clip = colour.clip_level[laser]
+    contradicted = _below_clip(res, p, y[..., laser], raw, clip, plateau["level"], noise, laser)
+    ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0) & ~contradicted
     centre, var, width, peak = p[:, 0].copy(), var.copy(), p[:, 1].copy(), p[:, 2 + laser].copy()
-    step = _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser)
+    step = _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser,
+                            lambda fit, q, index: _below_clip(fit, q, y[index, :, laser], raw[index], clip,
+                                                              plateau["level"][index], noise, laser))
     if step is not None:
         use, step_centre, step_var, step_width, step_peak = step
         centre[use], var[use], width[use], peak[use] = step_centre, step_var, step_width, step_peak
@@ -135,10 +144,11 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     return {k: a[ok] for k, a in out.items()}
 
 
-def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser):
+def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser, contradicted):
     """The colour model times a reflectance step (:mod:`scanrig.laser.reflectance`), fitted where the
     plain fit failed or its χ²/dof is ``_STEP_TRIGGER`` times the median of the frame's converged
-    fits, and kept where the F test supports it and its centre stays within ``max_shift_px``.
+    fits, and kept where the F test supports it, its centre stays within ``max_shift_px`` and
+    ``contradicted(fit, params (k, P), index (k,))`` (:func:`_below_clip`) is False.
 
     ``y, usable (n, W, 3)`` the windows, ``x (W,)`` their pixels, ``res`` the plain fit, ``ok (n,)``
     where it converged on the seed. The step starts from a beam-wide profile at the window's middle
@@ -166,9 +176,24 @@ def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, l
                     n_iter=_STEP_ITERATIONS, statistical=False)
     q, var = fit.params, cov[:, 0, 0]
     keep = (np.isfinite(var) & (np.abs(q[:, 0]) <= max_shift_px[suspect])
-            & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof))
+            & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof) & ~contradicted(fit, q, suspect))
     q, var = q[keep], var[keep]
     return suspect[keep], q[:, 0], var, q[:, 1], q[:, 2 + laser] * reflectance_at(q[:, 0], q[:, 8:])
+
+
+def _below_clip(fit, p: np.ndarray, y: np.ndarray, raw: np.ndarray, clip: float, level: np.ndarray, noise: np.ndarray,
+                laser: int) -> np.ndarray:
+    """Where a colour fit ``fit`` (:func:`_fit`'s, parameters ``p (n, P)``) is contradicted by the
+    window's middle pixel: clipped in the frame (the run's middle; ``raw (n, W)`` the frame's laser
+    channel, ``clip`` its level), while the fitted laser channel plus the dark frame there
+    (``raw - y``, ``y (n, W)`` the laser channel fitted, DN) stays below the half level
+    ``level (n,)`` between the background and the clip (:func:`plateau_midpoint`). A clipped pixel
+    is censored, not void: the light there reached the clip at least. A fit that leaves it out of
+    account can centre a narrow profile on the few unclipped pixels of one edge (on the Ciclop
+    board 1-3 px off the run's middle, with σ 0.01 px); such windows are dropped."""
+    mid = raw.shape[1] // 2
+    fitted = fit.model(p.T)[0][laser * raw.shape[1] + mid] * noise[laser]  # whitened model -> DN, (n,)
+    return (raw[:, mid] >= clip) & (fitted + raw[:, mid] - y[:, mid] < level)
 
 
 def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndarray, others_noise: np.ndarray,
@@ -180,13 +205,19 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     ``T = (B + clip) / 2`` (clipped pixels count at ``clip``). Each edge lies where the channel crosses
     ``T``, linearly interpolated between the run's last pixel and the one beyond; the centre is the
     midpoint of the two edges. An edge's variance propagates the noise of its unclipped pixel(s)
-    through the interpolation; where the run's pixel is clipped, its true value, and with it where
-    in that pixel step the edge lies, is unknown (a partial pixel beyond it is lit by an unknown share
-    of a beam of unknown peak), and ``1/12 px²`` is added: the edge is known only to that step.
+    through the interpolation, plus ``1/12 px²``: the edge is known only to its pixel step. A partial
+    pixel at the edge, clipped or not, is lit by an unknown share of a beam whose level over the run
+    is unknown (at least the clip), and where a camera's sharpening, demosaicing or black clip shapes
+    the step, the two pixels' values do not place the edge within it (on the Ciclop board, whose
+    edges' pixels are often near the clip and at 0 DN, the noise alone gave σ 0.001 px).
 
-    The midpoint applies where the run carries no crosstalk profile (every other channel is flat
-    over it within its noise, ``_CROSSTALK_CHI2_SIGMAS``) and both edges are steep (the crossing
-    pair of pixels spans ``_STEEP_SHARE`` of ``clip - B``) and inside the window.
+    The midpoint applies where the run carries no crosstalk profile and both edges are steep (the
+    crossing pair of pixels spans ``_STEEP_SHARE`` of ``clip - B``) and inside the window. A channel
+    carries no profile where its usable pixels are flat over the run within its noise
+    (``_CROSSTALK_CHI2_SIGMAS``), or where fewer than half of the window's pixels are usable: a
+    channel held at its black level (0 DN, censored) by a camera's colour matrix says nothing
+    about the beam there, and its noise, measured where it sits at 0, is only the quantisation's
+    (on the Ciclop board blue rises by 20-100 DN over a few pixels of some runs, 70-350 of that σ).
 
     Parameters
     ----------
@@ -195,7 +226,7 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
         the run's middle at index ``W // 2``.
     others, others_usable : (n, W, 2) arrays
         The other two channels (dark-subtracted where there is a dark frame), DN, and which of their
-        pixels are usable.
+        pixels are usable (not clipped at either end).
     others_noise : (2,) array
         Their noise σ, DN.
     noise, clip : float
@@ -205,8 +236,8 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     -------
     dict of (n,) arrays
         ``centre`` (px from the window's middle), ``var`` (px²), ``half_length`` (half the distance
-        between the edges, px), ``rise`` (``clip - B``, DN: a lower bound of the laser's peak) and
-        ``applies`` (bool).
+        between the edges, px), ``rise`` (``clip - B``, DN: a lower bound of the laser's peak),
+        ``level`` (``T``, DN) and ``applies`` (bool).
     """
     n, w = raw.shape
     half = w // 2
@@ -223,7 +254,7 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     bright = v >= level[:, None]
     right = np.cumprod(bright[:, half:], axis=1).sum(axis=1)  # run pixels from the middle on, with it
     left = np.cumprod(bright[:, half::-1], axis=1).sum(axis=1)
-    applies = (half + right < w) & (half - left >= 0) & np.isfinite(background)
+    steep = (half + right < w) & (half - left >= 0) & np.isfinite(background)
     pick = np.arange(n)
     edges, var = [], np.zeros(n)
     for inner, sign in ((half + right - 1, 1), (half - left + 1, -1)):  # the two edges, not data
@@ -231,12 +262,11 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
         inner = np.clip(inner, 0, w - 1)
         vi, vo = v[pick, inner], v[pick, outer]
         rise = vi - vo
-        applies &= rise >= _STEEP_SHARE * (clip - background)
+        steep &= rise >= _STEEP_SHARE * (clip - background)
         rise = np.where(rise > 0, rise, 1.0)
         edges.append(inner - half + sign * (vi - level) / rise)
         lit_inner = unclipped[pick, inner]
-        var += noise**2 * ((level - vo) ** 2 * lit_inner + (vi - level) ** 2) / rise**4
-        var += np.where(lit_inner, 0.0, _QUANTISATION_VAR)
+        var += noise**2 * ((level - vo) ** 2 * lit_inner + (vi - level) ** 2) / rise**4 + _QUANTISATION_VAR
     # the other channels over the run: flat within their noise, or a crosstalk profile
     offs = np.arange(w) - half
     run = (offs[None, :] < right[:, None]) & (offs[None, :] > -left[:, None])  # (n, W)
@@ -246,9 +276,10 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     s_y, s_yy = np.einsum("nwc,nwc->nc", others, weight), np.einsum("nwc,nwc->nc", others * others, weight)
     chi2 = (s_yy - s_y * s_y / np.maximum(count, 1)) / others_noise**2  # Σ (y - mean)² over the run
     dof = np.maximum(count - 1, 0)
-    applies &= np.all(chi2 <= dof + _CROSSTALK_CHI2_SIGMAS * np.sqrt(2.0 * dof), axis=1)
+    profile = (chi2 > dof + _CROSSTALK_CHI2_SIGMAS * np.sqrt(2.0 * dof)) & (others_usable.mean(axis=1) >= 0.5)
+    applies = steep & ~profile.any(axis=1)
     return {"centre": 0.5 * (edges[0] + edges[1]), "var": 0.25 * var, "half_length": 0.5 * (edges[0] - edges[1]),
-            "rise": clip - background, "applies": applies}
+            "rise": clip - background, "level": level, "applies": applies}
 
 
 def fit_clipped_spots(colour: ColourFrames, u: np.ndarray, v: np.ndarray, half: int,
@@ -312,11 +343,11 @@ def _windows(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray):
     return y, usable, colour.channel_noise
 
 
-def _laser_raw(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The frame's laser channel (not dark-subtracted) at ``rows, cols (n, M)``, DN; pixels outside
+def _raw(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The frame (not dark-subtracted) at ``rows, cols (n, M)``, ``(n, M, 3)``, DN; pixels outside
     the frame repeat its border."""
     h, w = colour.image.shape[:2]
-    return colour.image[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1), colour.laser_channel]
+    return colour.image[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]
 
 
 def _bounds(colour: ColourFrames, half: int, n_axes: int):
