@@ -256,3 +256,19 @@ def test_a_column_of_ghosts_below_the_high_levels_front_does_not_bend_its_fit():
         probe = np.column_stack([points[front, :2], np.full(front.sum(), STEP / 2)])
         levels.append(np.median(project_on_surface(result, probe)[:, 2] / STEP))
     assert np.median(levels) >= 1 - SIGMA / STEP, levels
+
+
+def test_charts_split_side_by_side_give_the_same_sheets_and_normals():
+    rng = np.random.default_rng(11)
+    grids = [step_grid(rng, n_ghosts=N_SIDE // 2)[0] for _ in range(3)]
+    points = np.concatenate([grid + [0.0, 3.0 * i, 0.0] for i, grid in enumerate(grids)])  # three steps apart
+    normals = estimate_normals(points)
+    np.testing.assert_array_equal(estimate_normals(points, workers=2), normals)
+    charts = split_charts(points, normals, max_points=len(grids[0]), q=0.25)
+    alone = split_sheets(points, normals, charts, q=0.25, cut=4.0)
+    side_by_side = split_sheets(points, normals, charts, q=0.25, cut=4.0, workers=3)
+    assert len(alone) > len(charts)  # some charts hold the step
+    assert len(side_by_side) == len(alone)
+    for a, b in zip(alone, side_by_side):
+        for name in ("members", "core", "trained"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))

@@ -143,7 +143,7 @@ GROW = 4
 MAX_NEIGHBOURS = 256
 
 
-def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
+def estimate_normals(points: np.ndarray, k: int = 16, *, workers: int = 1) -> np.ndarray:
     """Unoriented unit normals from the covariance of the nearest neighbours.
 
     A neighbourhood along a curve (the ``k`` nearest points of a laser stripe all lie on it)
@@ -158,6 +158,8 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
         Metres.
     k : int
         Neighbours per point (including itself), clipped to N.
+    workers : int
+        Threads of the neighbour queries (the same normals whatever their number).
 
     Returns
     -------
@@ -169,7 +171,7 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     todo = np.arange(len(points))
     while len(todo):
         k = min(k, len(points))
-        _, idx = tree.query(points[todo], k=k)
+        _, idx = tree.query(points[todo], k=k, workers=workers)
         nb = points[idx.reshape(len(todo), k)]
         centred = nb - nb.mean(axis=1, keepdims=True)
         value, vector = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))

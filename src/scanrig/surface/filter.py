@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import torch
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.geometry.checks import check_points
@@ -215,10 +216,11 @@ def _filter_cloud(points: np.ndarray, *, rng: np.random.Generator, q: float, set
                   max_chart_points: int, sigma_floor: float, device: str, train_mask: np.ndarray | None,
                   point_sigma: np.ndarray | None) -> FilterResult:
     """:func:`filter_points` on checked input, the cloud at once."""
-    normals = estimate_normals(points)
+    workers = torch.get_num_threads()  # the networks' threads: of the neighbours and sheets too
+    normals = estimate_normals(points, workers=workers)
     r = settings.constants.r
     charts = split_sheets(points, normals, split_charts(points, normals, max_points=max_chart_points, q=q),
-                          q=q, cut=r, point_sigma=point_sigma)
+                          q=q, cut=r, point_sigma=point_sigma, workers=workers)
     sparse = _sparse_points(charts, len(points))
     is_sparse = np.array([sparse[c.core].all() for c in charts])
     fitted = []  # (charts, fits, uv_scale, z_scale) of the dense charts, then of the sparse ones
@@ -272,7 +274,7 @@ def _fit_refined(points: np.ndarray, normals: np.ndarray, charts: list[Chart], s
             break
         halves = split_sheets(points, normals,
                               halve_charts(points, normals, [c for c, bad in zip(charts, loose) if bad], q=q),
-                              q=q, cut=r, point_sigma=point_sigma)
+                              q=q, cut=r, point_sigma=point_sigma, workers=torch.get_num_threads())
         if train_mask is not None and min(train_mask[h.members].sum() for h in halves) < 2 * settings.n_folds:
             break  # a half of points left out of training has nothing to fit: keep the charts
         new_fits, new_uv_scale, new_z_scale = _fit(points, halves, settings, rng, train_mask, sigma_floor, device,

@@ -64,6 +64,7 @@ components; a component needs ``MIN_CHART_POINTS`` core points to count.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -92,7 +93,7 @@ SLOPE_SPREAD = 0.3
 
 def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *, q: float, cut: float,
                  k: int = 16, max_angle: float = np.deg2rad(60.0), overlap: float = 0.25,
-                 point_sigma: np.ndarray | None = None) -> list[Chart]:
+                 point_sigma: np.ndarray | None = None, workers: int = 1) -> list[Chart]:
     """Replace each chart that holds two or more sheets (a step) by one chart per sheet.
 
     Parameters
@@ -111,22 +112,24 @@ def split_sheets(points: np.ndarray, normals: np.ndarray, charts: list[Chart], *
     point_sigma : (N,) float array, optional
         The points' own predicted noise, metres: a chart's noise scale is never taken below the
         median of its members' (see :func:`sheet_labels`).
+    workers : int
+        Threads that split charts side by side (the charts are independent and their
+        arithmetic releases the GIL; the sheets are the same whatever their number).
 
     Returns
     -------
     list of Chart
         The charts without a step unchanged, then the sheets.
     """
-    kept, sheets = [], []
-    for chart in charts:
+    def split(chart: Chart) -> list[Chart] | None:
         floor = 0.0 if point_sigma is None else float(np.median(point_sigma[chart.members]))
-        split = _sheets_of(points, normals, chart, q=q, cut=cut, k=k, cos_max=np.cos(max_angle),
-                           overlap=overlap, sigma_floor=floor)
-        if split is None:
-            kept.append(chart)
-        else:
-            sheets += split
-    return kept + sheets
+        return _sheets_of(points, normals, chart, q=q, cut=cut, k=k, cos_max=np.cos(max_angle),
+                          overlap=overlap, sigma_floor=floor)
+
+    with ThreadPoolExecutor(max(1, workers)) as pool:
+        splits = list(pool.map(split, charts))
+    kept = [chart for chart, parts in zip(charts, splits) if parts is None]
+    return kept + [sheet for parts in splits if parts is not None for sheet in parts]
 
 
 def sheet_labels(uv: np.ndarray, h: np.ndarray, *, q: float, cut: float, k: int = 16,
