@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, _edges, _gram, _misfits, _profile, centre_misfit, fit_batch,
-                               lever_misfit)
+from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, _spd_inverse,
+                               centre_misfit, fit_batch, lever_misfit)
 from scanrig.laser.image import ColourFrames
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
 from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step
@@ -120,9 +120,8 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     # on the rendered 1080p frame 0.15 px from the fitted centre instead of 0.43 (medians), and 9 %
     # fewer evaluations
     p0[:, 0] = np.nan_to_num(plateau["centre"])
-    res, cov = _fit(y, usable, noise, _model_1d(x, noise), p0, lower, upper, 1, _normal_1d(x, noise, (lower, upper)),
-                    lever=_lever_1d(x, noise), solve=_solve_1d)
-    p, var = res.params, cov[:, 0, 0]
+    res, var = _fit_projected(y, usable, noise, x, p0, lower, upper)
+    p = res.params
     max_shift_px = np.broadcast_to(max_shift_px, var.shape)
     clip = colour.clip_level[laser]
     contradicted = _below_clip(res, p, y[..., laser], raw, clip, plateau["level"], noise, laser)
@@ -371,36 +370,65 @@ def _plain_start(y, usable, noise, laser, trial, n_axes):
 
 
 def _fit(y, usable, noise, model, p0, lower, upper, n_axes, normal=None, n_iter=12, statistical=True,
-         clusters=None, lever=None, solve=None):
+         clusters=None):
     """Levenberg–Marquardt on the whitened windows ``y (n, M, 3)`` from ``p0 (n, P)`` (``normal``:
-    the model's normal equations, ``solve`` their solver, ``n_iter`` the most iterations, see
+    the model's normal equations, ``n_iter`` the most iterations, see
     :func:`~scanrig.laser.fit.fit_batch`); returns the fit and the covariance ``(n, P, P)`` of the
     parameters, inflated where the model leaves a misfit that pulls the centre (its first ``n_axes``
     parameters, :func:`~scanrig.laser.fit.centre_misfit`, with the pixels' ``clusters (n, M)`` of
-    correlated errors, the three channels of a pixel in its cluster; or, given the model's ``lever``
-    (:func:`_lever_1d`), from the centre's row of ``(JᵀJ)⁻¹ Jᵀ`` it makes, without the dense Jacobian).
-    With ``statistical``, a fit stops by fit_batch's statistical rule (the whitened pixels have unit
-    variance), else by its relative tolerance."""
-    n, m = y.shape[:2]
-    # candidate-minor stacks, channel-major pixels: (3 M, n)
-    y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
-    mask = np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
+    correlated errors, the three channels of a pixel in its cluster). With ``statistical``, a fit
+    stops by fit_batch's statistical rule (the whitened pixels have unit variance), else by its
+    relative tolerance."""
+    n = y.shape[0]
+    y_minor, mask = _minor(y, usable, noise)
     res = fit_batch(model, y_minor, mask, p0, lower, upper, n_iter, minor=True, normal=normal,
-                    noise_var=np.ones(n) if statistical else None, solve=solve)
+                    noise_var=np.ones(n) if statistical else None)
     cov = res.info_inv.copy()
     good = np.all(np.isfinite(cov), axis=(1, 2))
-    if lever is not None:  # whitened pixels: the cost is χ², and unit variance where fitted
-        misfit = np.flatnonzero(good)[_misfits(res.chi2_unit[good], np.maximum(res.dof[good], 1))]
-        if misfit.size:
-            cov[misfit] *= lever(res.params[misfit].T, res.info_inv[misfit, 0].T, y_minor[:, misfit],
-                                 mask[:, misfit])[:, None, None]
-    elif good.any():
+    if good.any():
         pick = slice(None) if good.all() else good  # views, not copies, where every fit is usable
         cov[pick] *= centre_misfit(res.jac.transpose(2, 1, 0)[..., pick], res.info_inv[pick],
                                    res.residuals.T[:, pick], mask[:, pick].astype(float), res.dof[pick],
                                    tuple(range(n_axes)),
                                    None if clusters is None else np.tile(clusters.T, (3, 1))[:, pick])[:, None, None]
     return res, cov
+
+
+def _fit_projected(y, usable, noise, x, p0, lower, upper, n_iter=12):
+    """The plain stripe fit (:func:`_model_1d`) by variable projection: Levenberg–Marquardt over the
+    centre and width only, each channel's amplitude and background solved for them at every
+    evaluation (:func:`_projection_1d`), on the whitened windows ``y (n, W, 3)`` from ``p0 (n, 8)``
+    (its levels are not used) within ``lower, upper (8,)``, stopped by fit_batch's statistical rule or
+    after ``n_iter`` iterations.
+
+    Returns the fit of the full model at the solution (``params (n, 8)``, ``info_inv (n, 8, 8)``,
+    ``dof`` of 8 parameters) and the centre's variance ``(n,)``, px² for unit pixel variance,
+    inflated where the model leaves a misfit (:func:`~scanrig.laser.fit.centre_misfit`'s factor from
+    the centre's row of ``(JᵀJ)⁻¹ Jᵀ``, :func:`_lever_1d`)."""
+    n = y.shape[0]
+    y_minor, mask = _minor(y, usable, noise)
+    y_minor *= mask  # the projection's sums of the data need no weights
+    normal, complete = _projection_1d(x, noise, (lower, upper))
+    reduced = fit_batch(None, y_minor, mask, p0[:, :2], lower[:2], upper[:2], n_iter, minor=True, normal=normal,
+                        noise_var=np.ones(n))
+    w = None if mask.all() else mask.astype(np.float64)
+    params, info_inv = complete(reduced.params.T, y_minor, w)
+    res = FitResult(params.T, info_inv, reduced.chi2_unit, reduced.dof - 6, _model_1d(x, noise), y_minor, w)
+    var = info_inv[:, 0, 0].copy()
+    good = np.isfinite(var)  # whitened pixels: the cost is χ², and unit variance where fitted
+    misfit = np.flatnonzero(good)[_misfits(res.chi2_unit[good], np.maximum(res.dof[good], 1))]
+    if misfit.size:
+        var[misfit] *= _lever_1d(x, noise)(params[:, misfit], info_inv[misfit, 0].T, y_minor[:, misfit],
+                                           mask[:, misfit])
+    return res, var
+
+
+def _minor(y, usable, noise):
+    """The windows ``y, usable (n, M, 3)`` as candidate-minor stacks with channel-major pixels,
+    ``(3 M, n)``: the data whitened by each channel's ``noise (3,)``, and the mask."""
+    n, m = y.shape[:2]
+    y_minor = np.ascontiguousarray(y.transpose(2, 1, 0).reshape(-1, n)) / np.repeat(noise, m)[:, None]
+    return y_minor, np.ascontiguousarray(usable.transpose(2, 1, 0).reshape(-1, n))
 
 
 def _model_1d(x: np.ndarray, noise: np.ndarray):
@@ -449,115 +477,98 @@ def _lever_1d(x: np.ndarray, noise: np.ndarray):
     return lever
 
 
-def _normal_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None = None):
-    """The cost and normal equations of :func:`_model_1d` for :func:`scanrig.laser.fit.fit_batch`
-    (``normal``), from the channels' sums instead of the dense Jacobian; given ``bounds``, after
-    setting each channel's amplitude and background to their least-squares optimum for the profile
-    at hand.
+#: The pairs ``(i, j ≤ i)`` of the profile's bases ``(g, ∂g/∂x0, ∂g/∂s)``, in the order of their sums.
+_PAIRS = ((0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2))
 
-    On channel ``c`` the Jacobian's columns are the profile's bases ``f = (g, ∂g/∂x0, ∂g/∂s, 1)``
-    scaled by ``(1/σ_c, a_c/σ_c, a_c/σ_c, 1/σ_c)`` for ``(a_c, x0, s, b_c)`` and zero for the other
-    channels' amplitudes and backgrounds, so ``JᵀJ`` and ``Jᵀr`` follow from the 4 × 4 sums
-    ``Σ w f_i f_j`` and ``Σ r f_i`` of each channel (a third of the products of the dense ``(8, 3 W)``
-    Jacobian, which is never built). ``p (8, k)``, ``y, w (3 W, k)`` -> ``Σ r² (k,)``, ``JᵀJ (8, 8, k)``
-    (lower triangle), ``Jᵀr (8, k)``.
 
-    The amplitudes and backgrounds enter the model linearly. Given ``bounds`` (the fit's ``(8,)``
-    lower and upper bounds), they are solved from the same sums (a 2 × 2 system per channel,
-    clipped to the bounds) and written into ``p`` before the normal equations are formed (variable
-    projection), so the fit's steps are spent on the centre and width, which the linear levels
-    would otherwise follow only over many steps (the large misfit of a halo makes Gauss–Newton
-    converge linearly): 30 % fewer evaluations on the rendered colour set, the same centres within
-    the stop rule's tolerance.
+def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]):
+    """Variable projection of :func:`_model_1d`: its cost and normal equations over the centre and
+    width alone, each channel's amplitude and background at their least-squares optimum for the
+    profile at hand (clipped to ``bounds``, the fit's ``(8,)`` lower and upper bounds).
+
+    Returns ``normal(p (2, k), y (3 W, k), w (3 W, k) or None) -> (Σ r² (k,), S (2, 2, k), Jᵀr (2,
+    k))`` for :func:`scanrig.laser.fit.fit_batch` (``y`` zero outside the mask ``w``), and
+    ``complete(p (2, k), y, w) -> (params (8, k), info_inv (k, 8, 8))``, the full model's parameters
+    and ``(JᵀJ)⁻¹`` (DN units) there.
+
+    On channel ``c`` the full model's Jacobian has the columns ``a_c (∂g/∂x0, ∂g/∂s)`` for the profile
+    and ``(g, 1)`` for the levels (whitened), so ``JᵀJ`` follows from the 4 × 4 sums ``Σ w f_i f_j`` of
+    ``f = (∂g/∂x0, ∂g/∂s, g, 1)``: blocks ``a_c² G_c`` (profile), ``a_c V_c`` (profile × levels),
+    ``D_c`` (levels, 2 × 2). Eliminating the levels leaves ``S = Σ_c a_c² (G_c − V_c D_c⁻¹ V_cᵀ)``, the
+    Gram matrix of the profile's columns projected off each channel's ``(g, 1)``: the normal
+    equations of the projected problem (Kaufman's), and ``S⁻¹`` is the full model's covariance of the
+    centre and width, the levels' uncertainty included. At the optimal levels ``Σ w r g = Σ w r = 0``,
+    so ``Jᵀr`` is the full model's profile rows; the residuals are never formed: ``Σ r²`` and ``Jᵀr``
+    come from the sums ``Σ y f_i``, ``Σ y`` and ``Σ y²``. NaN normal equations where a channel's
+    levels are not solvable (:func:`_levels`): no step is taken and the fit has no covariance.
     """
     edges = _edges(x)
     w_px = x.size
-    inv_noise = (1.0 / np.asarray(noise, float))[:, None]  # (3, 1)
-    inv_noise_levels = np.tile(inv_noise, (2, 1))  # (6, 1): the amplitudes', then the backgrounds'
-    rows, cols = np.tril_indices(4)  # the pairs (i, j ≤ i) of bases; pair[i, j]: the index of one
-    pair = {(i, j): k for k, (i, j) in enumerate(zip(rows, cols))}
+    sigma = np.tile(np.asarray(noise, float)[:, None], (2, 1))  # (6, 1): the amplitudes', then the backgrounds'
+    low, high = bounds[0][2:8, None] / sigma, bounds[1][2:8, None] / sigma  # whitened
 
-    def normal(p, y, w):
+    def terms(p, y, w):
         k = p.shape[1]
-        basis = np.empty((4, w_px, k))
-        _profile(edges, p[0], p[1], basis)  # g, ∂g/∂x0, ∂g/∂s
-        basis[3] = 1.0
+        # rows: the products f_i f_j (i >= j) of the bases f = (g, ∂g/∂x0, ∂g/∂s), then the bases
+        prods = np.empty((9, w_px, k))
+        basis = prods[6:]
+        _profile(edges, p[0], p[1], basis)
+        for q, (i, j) in enumerate(_PAIRS):
+            np.multiply(basis[i], basis[j], out=prods[q])
         y3 = y.reshape(3, w_px, k)
         if w is None:
-            sums = np.broadcast_to(_gram(basis)[rows, cols][:, None], (rows.size, 3, k))
-            wy = y3
+            sums = np.broadcast_to(prods.sum(axis=1)[:, None], (9, 3, k))
+            s_w = np.full((3, k), float(w_px))
         else:
             w3 = w.reshape(3, w_px, k)
-            sums = np.stack([_gram(basis * w3[c])[rows, cols] for c in range(3)], axis=1)  # Σ w f_i f_j, (10, 3, k)
-            wy = y3 * w3
-        if bounds is not None:
-            amp, background, solvable = _levels(sums[pair[0, 0]], sums[pair[3, 0]], sums[pair[3, 3]],
-                                                np.einsum("cmn,mn->cn", wy, basis[0]), wy.sum(axis=1))
-            current = p[2:8] * inv_noise_levels  # kept where a channel's system is singular
-            levels = np.concatenate([np.where(solvable, amp, current[:3]), np.where(solvable, background, current[3:])])
-            np.clip(levels / inv_noise_levels, bounds[0][2:8, None], bounds[1][2:8, None], out=p[2:8])
-        amp = p[2:5] * inv_noise  # (3, k), whitened
-        r = y3 - basis[0] * amp[:, None]
-        r -= (p[5:8] * inv_noise)[:, None]
-        if w is not None:
-            r *= w3
-        sg, sx, ss, s1 = np.stack([np.einsum("imn,mn->in", basis, r[c]) for c in range(3)], axis=1)  # Σ r f_i
-        hess = np.zeros((8, 8, k))
-        grad = np.empty((8, k))
-        # x0 and s, shared: the channels' sums scaled by amp²
+            sums = np.stack([np.einsum("qmn,mn->qn", prods, w3[c]) for c in range(3)], axis=1)  # Σ w f_i f_j, Σ w f_i
+            s_w = w3.sum(axis=1)
+        gram = {pair: sums[q] for q, pair in enumerate(_PAIRS)}  # (3, k) each
+        s_f = sums[6:]
+        s_fy = np.stack([np.einsum("imn,mn->in", basis, y3[c]) for c in range(3)], axis=1)  # Σ y f_i, (3, 3, k)
+        s_y, s_yy = y3.sum(axis=1), np.einsum("cmn,cmn->cn", y3, y3)
+        s_gg, s_g = gram[0, 0], s_f[0]
+        amp, bg, solvable = _levels(s_gg, s_g, s_w, s_fy[0], s_y)
+        amp, bg = np.clip(amp, low[:3], high[:3]), np.clip(bg, low[3:], high[3:])
+        cost = (s_yy - 2.0 * (amp * s_fy[0] + bg * s_y) + amp * (amp * s_gg + 2.0 * bg * s_g) + bg * bg * s_w).sum(0)
+        # the profile's bases d = ∂g/∂x0, ∂g/∂s (rows 1, 2 of the sums): V_c = (Σ w g d, Σ w d),
+        # E_c = V_c D_c⁻¹
+        v_g, v_1 = np.stack([gram[1, 0], gram[2, 0]]), s_f[1:]  # (2, 3, k)
+        with np.errstate(divide="ignore"):
+            inv_det = np.where(solvable, 1.0 / (s_gg * s_w - s_g * s_g), np.nan)
+        e_g, e_1 = (v_g * s_w - v_1 * s_g) * inv_det, (v_1 * s_gg - v_g * s_g) * inv_det
         amp2 = amp * amp
-        hess[0, 0] = np.einsum("cn,cn->n", amp2, sums[pair[1, 1]])
-        hess[1, 0] = np.einsum("cn,cn->n", amp2, sums[pair[2, 1]])
-        hess[1, 1] = np.einsum("cn,cn->n", amp2, sums[pair[2, 2]])
-        grad[0] = np.einsum("cn,cn->n", amp, sx)
-        grad[1] = np.einsum("cn,cn->n", amp, ss)
-        # a_c and b_c: channel c's sums only (the rows of the three channels at once)
-        amp_inv = amp * inv_noise
-        for base, target in ((0, 2), (3, 5)):  # g -> a_c, 1 -> b_c
-            hess[target : target + 3, 0] = amp_inv * sums[pair[max(base, 1), min(base, 1)]]
-            hess[target : target + 3, 1] = amp_inv * sums[pair[max(base, 2), min(base, 2)]]
+        hess = np.empty((2, 2, k))
+        for i, j in ((0, 0), (1, 0), (1, 1)):
+            hess[i, j] = (amp2 * (gram[i + 1, j + 1] - e_g[i] * v_g[j] - e_1[i] * v_1[j])).sum(axis=0)
+        hess[0, 1] = hess[1, 0]
+        grad = (amp * (s_fy[1:] - amp * v_g - bg * v_1)).sum(axis=1)  # (2, k)
+        return cost, hess, grad, (amp, bg, e_g, e_1, s_gg, s_g, s_w, inv_det)
+
+    def normal(p, y, w):
+        return terms(p, y, w)[:3]
+
+    def complete(p, y, w):
+        _, hess, _, (amp, bg, e_g, e_1, s_gg, s_g, s_w, inv_det) = terms(p, y, w)
+        k = p.shape[1]
+        reduced = _spd_inverse(hess).transpose(1, 2, 0)  # S⁻¹, (2, 2, k)
+        # F = (a_c E_c) for the levels (a_c, then b_c): the levels' rows of (JᵀJ)⁻¹ are −Fᵀ S⁻¹ beside the
+        # profile's and D⁻¹ + Fᵀ S⁻¹ F among themselves (whitened levels)
+        f = np.concatenate([amp * e_g, amp * e_1], axis=1)  # (2, 6, k)
+        cross = -(reduced[:, :1] * f[0] + reduced[:, 1:] * f[1])  # (2, 6, k)
+        levels = -(f[0][:, None] * cross[0] + f[1][:, None] * cross[1])  # Fᵀ S⁻¹ F, (6, 6, k)
         channel = np.arange(3)
-        hess[2 + channel, 2 + channel] = sums[pair[0, 0]] * inv_noise**2
-        hess[5 + channel, 2 + channel] = sums[pair[3, 0]] * inv_noise**2
-        hess[5 + channel, 5 + channel] = sums[pair[3, 3]] * inv_noise**2
-        grad[2:5] = sg * inv_noise
-        grad[5:8] = s1 * inv_noise
-        return np.einsum("cmn,cmn->n", r, r), hess, grad
+        levels[channel, channel] += s_w * inv_det  # D_c⁻¹ = (Σ w, −Σ w g; −Σ w g, Σ w g²) / det
+        levels[channel + 3, channel + 3] += s_gg * inv_det
+        levels[channel, channel + 3] -= s_g * inv_det
+        levels[channel + 3, channel] -= s_g * inv_det
+        info = np.empty((8, 8, k))
+        info[:2, :2], info[:2, 2:], info[2:, :2], info[2:, 2:] = reduced, cross, cross.transpose(1, 0, 2), levels
+        scale = np.concatenate([np.ones((2, 1)), sigma])  # whitened levels -> DN
+        info *= scale[:, None] * scale[None]
+        return np.concatenate([p, np.concatenate([amp, bg]) * sigma]), info.transpose(2, 0, 1)
 
-    return normal
-
-
-def _solve_1d(hess: np.ndarray, grad: np.ndarray, diag: np.ndarray) -> np.ndarray:
-    """Solution ``δ (8, k)`` of the normal equations of :func:`_model_1d` (``hess (8, 8, k)``, lower
-    triangle read, with the diagonal ``diag (8, k)``, and ``grad (8, k)``) by eliminating each
-    channel's amplitude and background, which meet no other channel's: per channel a 2 × 2 block
-    ``D_c``, then the 2 × 2 system of the centre and width, ``(H_pp − Σ_c B_c D_c⁻¹ B_cᵀ) δ_p =
-    g_p − Σ_c B_c D_c⁻¹ g_c``, then ``δ_c = D_c⁻¹ (g_c − B_cᵀ δ_p)`` (about a third of the operations
-    of the general factorisation). NaN where a system is not positive definite."""
-    amp, bg = slice(2, 5), slice(5, 8)
-    d_aa, d_bb, d_ab = diag[amp], diag[bg], hess[5 + np.arange(3), 2 + np.arange(3)]  # (3, k) each
-    b_xa, b_sa, b_xb, b_sb = hess[amp, 0], hess[amp, 1], hess[bg, 0], hess[bg, 1]  # B_c, (3, k) each
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv_det = np.where(d_aa * d_bb - d_ab * d_ab > 0, 1.0 / (d_aa * d_bb - d_ab * d_ab), np.nan)
-        # E_c = B_c D_c⁻¹, rows x0 and s, columns a_c and b_c
-        e_xa, e_xb = (b_xa * d_bb - b_xb * d_ab) * inv_det, (b_xb * d_aa - b_xa * d_ab) * inv_det
-        e_sa, e_sb = (b_sa * d_bb - b_sb * d_ab) * inv_det, (b_sb * d_aa - b_sa * d_ab) * inv_det
-        g_a, g_b = grad[amp], grad[bg]
-        s_xx = diag[0] - (e_xa * b_xa + e_xb * b_xb).sum(axis=0)
-        s_sx = hess[1, 0] - (e_sa * b_xa + e_sb * b_xb).sum(axis=0)
-        s_ss = diag[1] - (e_sa * b_sa + e_sb * b_sb).sum(axis=0)
-        r_x = grad[0] - (e_xa * g_a + e_xb * g_b).sum(axis=0)
-        r_s = grad[1] - (e_sa * g_a + e_sb * g_b).sum(axis=0)
-        det = s_xx * s_ss - s_sx * s_sx
-        det = np.where((det > 0) & (s_xx > 0), det, np.nan)
-        step = np.empty_like(grad)
-        step[0] = (s_ss * r_x - s_sx * r_s) / det
-        step[1] = (s_xx * r_s - s_sx * r_x) / det
-        rest_a = g_a - b_xa * step[0] - b_sa * step[1]
-        rest_b = g_b - b_xb * step[0] - b_sb * step[1]
-        step[amp] = (d_bb * rest_a - d_ab * rest_b) * inv_det
-        step[bg] = (d_aa * rest_b - d_ab * rest_a) * inv_det
-    return step
+    return normal, complete
 
 
 def _levels(s_gg, s_g, s_w, s_gy, s_y):
