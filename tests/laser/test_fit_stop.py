@@ -4,14 +4,16 @@ With the pixels' noise variance σ² given, a fit stops once what is left to gai
 ``STOP_CHI2 · σ²``, which leaves every parameter within ``√STOP_CHI2`` of its own standard deviation
 of the minimum (the notes of :func:`scanrig.laser.fit.fit_batch`). The tests compare with the same
 windows fitted to convergence (relative cost decrease 1e-14, 300 iterations), on small residuals
-(the grey stripes) and on large ones (a halo the model lacks, where Gauss–Newton zig-zags).
+(the grey stripes) and on large ones (a halo the model lacks, where Gauss–Newton zig-zags); with
+``misfit_stop``, on windows the model does not describe (a printed edge beside a weak peak).
 """
 
 import numpy as np
 import pytest
+from scipy.special import ndtr
 
 from scanrig.laser import stripes
-from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, STOP_CHI2, fit_batch, minor_model_1d
+from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, STOP_CHI2, _misfit_limit, fit_batch, minor_model_1d
 
 from .synth import integrated
 
@@ -99,6 +101,39 @@ def test_large_residuals_do_not_stop_the_fit_early():
     sigma_x0 = NOISE * np.sqrt(converged.info_inv[:, 1, 1])
     assert np.all(np.abs(quick.params[:, 1] - converged.params[:, 1]) <= BOUND_SIGMAS * sigma_x0)
     assert evaluations < 6.0
+
+
+def _statistical(y, p0, **options):
+    """The statistical fit of windows ``y`` from ``p0`` and its model evaluations per candidate."""
+    calls = []
+    res = fit_batch(_counted(minor_model_1d(X), calls), y, np.ones(y.shape, bool), p0, LOWER, UPPER, minor=True,
+                    noise_var=np.full(y.shape[1], NOISE**2), **options)
+    return res, sum(calls) / y.shape[1]
+
+
+def test_misfit_stop_shortens_windows_the_model_does_not_describe_and_spares_the_others():
+    """A printed edge (60-200 DN, 2-6 px off) beside each peak: χ²/dof in the hundreds, where the
+    stop in units of σ² crawls on. In units of the windows' own scatter they take at least one model
+    evaluation fewer, and their centres stay within twice the rule's bound (each fit within it of
+    the minimum) of the fits stopped in units of σ², in the σ the scatter gives them. Windows the
+    model describes are fitted exactly as without ``misfit_stop``."""
+    rng = np.random.default_rng(44)
+    n = 300
+    y, _ = _windows(rng, n)
+    y += rng.uniform(60, 200, n) * ndtr((X[:, None] - rng.uniform(2, 6, n) * rng.choice([-1, 1], n)) / 0.7)
+    p0 = stripes._start(y, np.full(n, 15.0), HALF, MAX_WIDTH_PX, None)
+    plain, plain_evaluations = _statistical(y, p0)
+    quick, evaluations = _statistical(y, p0, misfit_stop=stripes.HOPELESS_MISFIT)
+    scatter = plain.chi2_unit / plain.dof
+    assert np.median(scatter) > 100 * NOISE**2  # the model does not describe them, as intended
+    unit = np.maximum(NOISE**2, scatter / (stripes.HOPELESS_MISFIT * _misfit_limit(plain.dof)))
+    distance = np.abs(quick.params[:, 1] - plain.params[:, 1]) / np.sqrt(unit * plain.info_inv[:, 1, 1])
+    assert np.percentile(distance, 99) <= 2 * BOUND_SIGMAS
+    assert evaluations <= plain_evaluations - 1.0
+    y, _ = _windows(rng, n)
+    p0 = stripes._start(y, np.full(n, 15.0), HALF, MAX_WIDTH_PX, None)
+    np.testing.assert_array_equal(_statistical(y, p0, misfit_stop=stripes.HOPELESS_MISFIT)[0].params,
+                                  _statistical(y, p0)[0].params)
 
 
 def test_a_parameter_pushed_against_its_bound_is_held_and_the_others_converge():

@@ -265,7 +265,7 @@ class FitResult:
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
               upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False,
               normal=None, noise_var: np.ndarray | None = None, stop_chi2: float = STOP_CHI2,
-              solve=None) -> FitResult:
+              solve=None, misfit_stop: float | None = None) -> FitResult:
     """Levenberg–Marquardt least squares for a stack of independent windows.
 
     A candidate stops when an accepted step lowers its cost by less than ``tol`` (relative), or,
@@ -314,6 +314,11 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
         whose structure (entries that are always zero) gives it more cheaply than the general
         factorisation (:func:`_damped_solve`). The parameters held at their bounds keep that
         structure (their rows and columns are cleared).
+    misfit_stop : float, optional
+        With ``noise_var``: a candidate whose χ²/dof exceeds ``misfit_stop`` times its
+        ``MISFIT_LEVEL`` quantile ``q`` (a window the model does not describe) stops in units of
+        its residual variance ``s² = χ²/dof · σ²`` over ``misfit_stop · q`` instead of ``σ²`` (see
+        the notes). Default: every candidate in units of ``noise_var``.
 
     Returns
     -------
@@ -337,6 +342,15 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     not that the minimum is near; on the colour fit's whitened windows (χ²/dof about 20) it stopped
     fits up to 10 χ² short of their minimum, and the 99th percentile of the centres' distance from
     the fully converged ones was 0.11 of their σ instead of 0.06.
+
+    On a window the model does not describe (texture, a printed edge) the residuals are not noise:
+    its χ²/dof is tens to hundreds, and Gauss–Newton, whose ``JᵀJ`` leaves out the curvature that
+    large residuals add, crawls along the valley where peak, width and background trade off,
+    gaining a fraction of a σ² per accepted step at low damping (its steps are accepted, its
+    damping falls) until ``n_iter``. With ``misfit_stop`` the stop's unit is the larger of ``σ²``
+    and ``s² / (misfit_stop · q)``: unchanged for a window that fits or nearly does, it grows with
+    the scatter of one that does not, whose parameters then stop within ``√stop_chi2`` of the σ
+    that ``s² / (misfit_stop · q)`` gives them.
 
     Between iterations a candidate carries only its parameters, cost, damping and normal equations
     ``JᵀJ``, ``Jᵀr`` (``P² + P`` numbers), not its Jacobian and residuals: the working set is
@@ -368,6 +382,9 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     statistical = noise_var is not None
     if statistical:
         stop = stop_chi2 * np.asarray(noise_var, float) * np.ones(n)
+        if misfit_stop is not None:  # the cost above which the stop's unit grows with it
+            dof_1 = np.maximum(dof, 1)
+            scatter = (misfit_stop / stop_chi2) * dof_1 * _misfit_limit(dof_1) * stop
         curvature = np.ones(n)  # along the last step, over Gauss–Newton's (1 until a step measures it)
     lam = np.full(n, _LAMBDA0)
     converged = np.zeros(n, bool)
@@ -386,7 +403,10 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
             # measured along the last one (see the notes); only at low damping, where the step is
             # Gauss–Newton's
             lin, quad = _step_terms(hess, grad, p_try - pa)
-            leave |= (lam <= _LAMBDA0) & (lin * lin <= 4.0 * stop * curvature * quad)
+            unit = stop
+            if misfit_stop is not None:  # (a zero noise variance keeps its zero unit)
+                unit = stop * np.maximum(np.divide(cost, scatter, out=np.ones_like(cost), where=scatter > 0), 1.0)
+            leave |= (lam <= _LAMBDA0) & (lin * lin <= 4.0 * unit * curvature * quad)
         if step_count == n_iter:
             leave[:] = True
         if leave.any():
@@ -399,6 +419,8 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
             wa = None if wa is None else np.take(wa, keep, axis=-1)
             if statistical:
                 stop, lin, quad = (np.take(a, keep) for a in (stop, lin, quad))
+                if misfit_stop is not None:
+                    scatter = np.take(scatter, keep)
         if idx.size == 0:
             break
         cost_try, hess_try, grad_try = evaluate(p_try, ya, wa)
@@ -704,8 +726,13 @@ def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
 def _misfits(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """Whether each window's ``chi2 (n,)`` exceeds its ``MISFIT_LEVEL`` quantile for ``dof (n,)``
     (at least 1)."""
+    return chi2 / dof > _misfit_limit(dof)
+
+
+def _misfit_limit(dof: np.ndarray) -> np.ndarray:
+    """χ²/dof at the ``MISFIT_LEVEL`` quantile for each of ``dof (n,)`` (ints, at least 1)."""
     table_size = max(64, 1 << (int(dof.max(initial=1)) - 1).bit_length())  # few distinct tables
-    return chi2 / dof > _misfit_limits(table_size)[dof - 1]
+    return _misfit_limits(table_size)[dof - 1]
 
 
 @functools.lru_cache(maxsize=16)

@@ -46,6 +46,10 @@ DIRECTIONS = ("auto", "rows", "columns")
 MAX_SHIFT_PX = 2.0
 #: Fits on one line whose centres lie closer than this are one peak fitted twice, px.
 SAME_PEAK_PX = 0.5
+#: A window whose χ²/dof exceeds this many times its misfit quantile is not a stripe the model
+#: describes (texture, printed edges): its fit stops in units of its residual variance over this
+#: many times that quantile (``misfit_stop`` of :func:`~scanrig.laser.fit.fit_batch`).
+HOPELESS_MISFIT = 4.0
 
 
 def detect_stripe(
@@ -267,7 +271,8 @@ def _fit_lines(signal, saturated, line, pos, maxima, background, noise, max_widt
     p0 = _start(y, background.astype(np.float64), half, max_width_px, sat)
     lower = np.array([MIN_PEAK_DN, -half, MIN_WIDTH_PX, -np.inf])
     upper = np.array([np.inf, half, max_width_px, np.inf])
-    res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True, noise_var=noise**2)
+    res = fit_batch(minor_model_1d(offs.astype(float)), y, mask, p0, lower, upper, minor=True, noise_var=noise**2,
+                    misfit_stop=HOPELESS_MISFIT)
     p = res.params
     var = parameter_covariance(res, noise, correlation=correlation, shot_slope=shot_slope)[:, 1, 1]
     ok = np.isfinite(var) & (np.abs(p[:, 1]) <= MAX_SHIFT_PX) & (res.dof > 0)
