@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, _spd_inverse,
-                               centre_misfit, fit_batch, lever_misfit)
+                               centre_misfit, fit_batch, integrated_profile, lever_misfit)
 from scanrig.laser.image import ColourFrames
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
 from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step
@@ -124,12 +124,12 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     p = res.params
     max_shift_px = np.broadcast_to(max_shift_px, var.shape)
     clip = colour.clip_level[laser]
-    contradicted = _below_clip(res, p, y[..., laser], raw, clip, plateau["level"], noise, laser)
+    contradicted = _below_clip(p, y[..., laser], raw, clip, plateau["level"], laser)
     ok = np.isfinite(var) & (np.abs(p[:, 0]) <= max_shift_px) & (res.dof > 0) & ~contradicted
     centre, var, width, peak = p[:, 0].copy(), var.copy(), p[:, 1].copy(), p[:, 2 + laser].copy()
     step = _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, laser,
-                            lambda fit, q, index: _below_clip(fit, q, y[index, :, laser], raw[index], clip,
-                                                              plateau["level"][index], noise, laser))
+                            lambda q, index: _below_clip(q, y[index, :, laser], raw[index], clip,
+                                                         plateau["level"][index], laser))
     if step is not None:
         use, step_centre, step_var, step_width, step_peak = step
         centre[use], var[use], width[use], peak[use] = step_centre, step_var, step_width, step_peak
@@ -147,7 +147,7 @@ def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, l
     """The colour model times a reflectance step (:mod:`scanrig.laser.reflectance`), fitted where the
     plain fit failed or its χ²/dof is ``_STEP_TRIGGER`` times the median of the frame's converged
     fits, and kept where the F test supports it, its centre stays within ``max_shift_px`` and
-    ``contradicted(fit, params (k, P), index (k,))`` (:func:`_below_clip`) is False.
+    ``contradicted(params (k, P), index (k,))`` (:func:`_below_clip`) is False.
 
     ``y, usable (n, W, 3)`` the windows, ``x (W,)`` their pixels, ``res`` the plain fit, ``ok (n,)``
     where it converged on the seed. The step starts from a beam-wide profile at the window's middle
@@ -175,23 +175,26 @@ def _refit_with_step(y, usable, noise, x, res, ok, lower, upper, max_shift_px, l
                     n_iter=_STEP_ITERATIONS, statistical=False)
     q, var = fit.params, cov[:, 0, 0]
     keep = (np.isfinite(var) & (np.abs(q[:, 0]) <= max_shift_px[suspect])
-            & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof) & ~contradicted(fit, q, suspect))
+            & step_is_significant(res.chi2_unit[suspect], fit.chi2_unit, fit.dof) & ~contradicted(q, suspect))
     q, var = q[keep], var[keep]
     return suspect[keep], q[:, 0], var, q[:, 1], q[:, 2 + laser] * reflectance_at(q[:, 0], q[:, 8:])
 
 
-def _below_clip(fit, p: np.ndarray, y: np.ndarray, raw: np.ndarray, clip: float, level: np.ndarray, noise: np.ndarray,
+def _below_clip(p: np.ndarray, y: np.ndarray, raw: np.ndarray, clip: float, level: np.ndarray,
                 laser: int) -> np.ndarray:
-    """Where a colour fit ``fit`` (:func:`_fit`'s, parameters ``p (n, P)``) is contradicted by the
-    window's middle pixel: clipped in the frame (the run's middle; ``raw (n, W)`` the frame's laser
-    channel, ``clip`` its level), while the fitted laser channel plus the dark frame there
+    """Where a colour fit (parameters ``p (n, P)``: :data:`PARAMS_1D`, then the reflectance step's
+    where it has one) is contradicted by the window's middle pixel: clipped in the frame (the run's
+    middle; ``raw (n, W)`` the frame's laser channel, ``clip`` its level), while the fitted laser
+    channel (at the middle, ``x = 0``) plus the dark frame there
     (``raw - y``, ``y (n, W)`` the laser channel fitted, DN) stays below the half level
     ``level (n,)`` between the background and the clip (:func:`plateau_midpoint`). A clipped pixel
     is censored, not void: the light there reached the clip at least. A fit that leaves it out of
     account can centre a narrow profile on the few unclipped pixels of one edge (on the Ciclop
     board 1-3 px off the run's middle, with σ 0.01 px); such windows are dropped."""
     mid = raw.shape[1] // 2
-    fitted = fit.model(p.T)[0][laser * raw.shape[1] + mid] * noise[laser]  # whitened model -> DN, (n,)
+    fitted = p[:, 2 + laser] * integrated_profile(np.zeros(1), p[:, 0], p[:, 1])[0][:, 0] + p[:, 5 + laser]
+    if p.shape[1] > len(PARAMS_1D):  # times the step's reflectance at the middle
+        fitted *= reflectance_at(np.zeros(len(p)), p[:, len(PARAMS_1D) :])
     return (raw[:, mid] >= clip) & (fitted + raw[:, mid] - y[:, mid] < level)
 
 
