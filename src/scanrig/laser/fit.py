@@ -265,7 +265,7 @@ class FitResult:
 def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.ndarray,
               upper: np.ndarray, n_iter: int = 12, tol: float = 1e-5, *, minor: bool = False,
               normal=None, noise_var: np.ndarray | None = None, stop_chi2: float = STOP_CHI2,
-              solve=None, misfit_stop: float | None = None) -> FitResult:
+              misfit_stop: float | None = None) -> FitResult:
     """Levenberg–Marquardt least squares for a stack of independent windows.
 
     A candidate stops when an accepted step lowers its cost by less than ``tol`` (relative), or,
@@ -308,12 +308,6 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     stop_chi2 : float
         With ``noise_var``: a candidate stops when what is left to gain is at most
         ``stop_chi2 · σ²``.
-    solve : callable, optional
-        ``solve(hess (P, P, k), grad (P, k), diag (P, k)) -> δ (P, k)``, a new array: the solution of
-        the normal equations (lower triangle read) with the diagonal ``diag``, for normal equations
-        whose structure (entries that are always zero) gives it more cheaply than the general
-        factorisation (:func:`_damped_solve`). The parameters held at their bounds keep that
-        structure (their rows and columns are cleared).
     misfit_stop : float, optional
         With ``noise_var``: a candidate whose χ²/dof exceeds ``misfit_stop`` times its
         ``MISFIT_LEVEL`` quantile ``q`` (a window the model does not describe) stops in units of
@@ -393,7 +387,7 @@ def fit_batch(model, y: np.ndarray, mask: np.ndarray, p0: np.ndarray, lower: np.
     for step_count in range(n_iter + 1):
         # a parameter on its bound that the cost pushes outwards is held there (projected step)
         held = ((pa <= lower) & (grad <= 0.0)) | ((pa >= upper) & (grad >= 0.0))
-        step = _damped_solve(*(_held(hess, grad, held) if held.any() else (hess, grad)), lam, solve)
+        step = _damped_solve(*(_held(hess, grad, held) if held.any() else (hess, grad)), lam)
         leave = converged | (lam >= 1e10)
         if statistical:  # 1 / curvature within _STEP_SCALES (the longest where it is not positive)
             step *= np.maximum(1.0 / np.maximum(curvature, 1.0 / _STEP_SCALES[1]), _STEP_SCALES[0])
@@ -513,15 +507,13 @@ def _unrolled(n_par: int, k: int) -> bool:
     return k >= _UNROLLED_PER_PARAMETER * n_par
 
 
-def _damped_solve(hess: np.ndarray, grad: np.ndarray, lam: np.ndarray, solve=None) -> np.ndarray:
+def _damped_solve(hess: np.ndarray, grad: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """Levenberg–Marquardt step ``(P, k)``: the solution of ``(JᵀJ + λ diag(JᵀJ) + ε) δ = Jᵀr``
     for the normal equations ``hess (P, P, k)`` (lower triangle read) and ``grad (P, k)`` and
-    ``lam (k,)``, by ``solve`` when given (see :func:`fit_batch`); a new array."""
+    ``lam (k,)``; a new array."""
     n_par, _, k = hess.shape
     diag = hess.reshape(n_par * n_par, k)[:: n_par + 1]  # a view: the diagonals, (P, k)
     damped = diag + (lam * diag + 1e-12 * diag.max(axis=0) + 1e-300)
-    if solve is not None:
-        return solve(hess, grad, damped)
     if not _unrolled(n_par, k):  # (k, P, P) stacks for LAPACK
         full = _symmetric_stack(hess)
         full.reshape(k, -1)[:, :: n_par + 1] = damped.T
