@@ -13,10 +13,10 @@ percentiles 0.11 and 0.14 σ).
 import numpy as np
 import pytest
 
-from scanrig.laser import colour_fit, stripes
+from scanrig.laser import colour_fit
 from scanrig.laser.fit import STOP_CHI2, fit_batch
 
-from .colour_synth import stripe_frames
+from .colour_fit_calls import plain_fit_arguments
 
 #: The stop rule's bound on a parameter's distance from the minimum, in its standard deviations.
 BOUND_SIGMAS = np.sqrt(STOP_CHI2)
@@ -24,25 +24,9 @@ BOUND_SIGMAS = np.sqrt(STOP_CHI2)
 ROOMY_ITERATIONS = 40
 
 
-def _plain_fit_arguments(monkeypatch, seed):
-    """The arguments of the plain colour fit of the rendered frame of ``seed`` (no laser-off frame)."""
-    calls = []
-    fit = colour_fit._fit_projected
-
-    def spy(*args, **options):
-        calls.append(args)
-        return fit(*args, **options)
-
-    monkeypatch.setattr(colour_fit, "_fit_projected", spy)
-    on, _, _ = stripe_frames(np.random.default_rng(seed))
-    stripes.detect_stripe(on, color="red")
-    monkeypatch.undo()
-    return calls[0]
-
-
 @pytest.mark.parametrize("seed", [2, 4])
 def test_the_colour_fit_stops_within_its_bound_of_the_minimum(monkeypatch, seed):
-    y, usable, noise, x, p0, lower, upper = _plain_fit_arguments(monkeypatch, seed)
+    y, usable, noise, x, p0, lower, upper = plain_fit_arguments(monkeypatch, seed)
     quick, _ = colour_fit._fit_projected(y, usable, noise, x, p0, lower, upper, n_iter=ROOMY_ITERATIONS)
     y_minor, mask = colour_fit._minor(y, usable, noise)
     # the full model through its dense Jacobian, levels and all iterated

@@ -11,25 +11,9 @@ parabola through the trial widths' χ² (:func:`scanrig.laser.colour_fit._refine
 
 import numpy as np
 
-from scanrig.laser import colour_fit, fit, stripes
+from scanrig.laser import colour_fit, fit
 
-from .colour_synth import stripe_frames
-
-
-def _plain_fit_arguments(monkeypatch, seed):
-    """The arguments of the plain colour fit of the rendered frame of ``seed`` (no laser-off frame)."""
-    calls = []
-    fit_projected = colour_fit._fit_projected
-
-    def spy(*args, **options):
-        calls.append(args)
-        return fit_projected(*args, **options)
-
-    monkeypatch.setattr(colour_fit, "_fit_projected", spy)
-    on, _, _ = stripe_frames(np.random.default_rng(seed))
-    stripes.detect_stripe(on, color="red")
-    monkeypatch.undo()
-    return calls[0]
+from .colour_fit_calls import plain_fit_arguments
 
 
 def _dense(res, mask):
@@ -40,7 +24,7 @@ def _dense(res, mask):
 
 
 def test_the_projected_fit_reports_the_dense_covariance_and_inflates_as_the_dense_jacobian_does(monkeypatch):
-    y, usable, noise, x, p0, lower, upper = _plain_fit_arguments(monkeypatch, 3)
+    y, usable, noise, x, p0, lower, upper = plain_fit_arguments(monkeypatch, 3)
     res, var = colour_fit._fit_projected(y, usable, noise, x, p0, lower, upper)
     mask = colour_fit._minor(y, usable, noise)[1].astype(float)
     jac, residuals, info_inv = _dense(res, mask)
@@ -54,7 +38,7 @@ def test_the_projected_fit_reports_the_dense_covariance_and_inflates_as_the_dens
 
 
 def test_the_projected_normal_equations_are_the_full_models_with_the_levels_eliminated(monkeypatch):
-    y, usable, noise, x, p0, lower, upper = _plain_fit_arguments(monkeypatch, 3)
+    y, usable, noise, x, p0, lower, upper = plain_fit_arguments(monkeypatch, 3)
     y_minor, mask = colour_fit._minor(y, usable, noise)
     y_minor *= mask
     w = mask.astype(float)
