@@ -21,17 +21,16 @@ from scanrig.errors import FileFormatError, InputError
 from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
 from scanrig.laser.median_dark import median_dark
+from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.image import LASER_COLORS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
-#: Scan directions of stripe detection (:func:`scanrig.laser.stripes.detect_stripe`'s ``direction``).
-DIRECTIONS = ("auto", "rows", "columns")
 #: Where a camera's laser-off frame comes from: its ``scan/<camera>/dark.<ext>`` only ("file"), or,
 #: where it has none, the median of its scan frames ("median", :mod:`scanrig.laser.median_dark`).
 DARK_SOURCES = ("file", "median")
-#: Options added after ``traces.parquet`` files were first written, with the value such files used.
-_LATER_OPTIONS = {"direction": "auto", "dark": "file"}
+#: Options added after ``traces.parquet`` files were first written: such files used their defaults.
+_LATER_OPTIONS = ("direction", "dark")
 #: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
 _CHUNK_FRAMES = 8
 
@@ -153,7 +152,8 @@ def detect_session(
         table, meta = read_traces(session.traces_path)
         made_with = meta.get("options")
         if isinstance(made_with, dict):
-            made_with = made_with | {k: v for k, v in _LATER_OPTIONS.items() if k not in made_with}
+            defaults = DetectOptions().as_dict()
+            made_with = made_with | {k: defaults[k] for k in _LATER_OPTIONS if k not in made_with}
         if made_with != options.as_dict():
             raise FileFormatError(session.traces_path, f"was made with options {made_with}, "
                                   f"not {options.as_dict()}; run without --resume to start again")
