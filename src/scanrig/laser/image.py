@@ -390,19 +390,21 @@ def _clipped(image: np.ndarray, color: str, clip_levels: np.ndarray,
     # an integer pixel is at or above a level where it is at or above its ceiling: NumPy compares
     # integers ten times faster than with a float
     levels = np.ceil(clip_levels).astype(image.dtype)
-    if image.ndim == 2:
-        clipped = image >= levels[0]
-    elif color == "grey":
+    if image.ndim == 3 and color == "grey":
         clipped = (image >= levels).any(axis=2)
+        return clipped if clipped.any() else None
+    if image.ndim == 2:
+        plane, level = image, levels[0]
     else:
         import cv2
 
         # the channel extracted by OpenCV first: twice as fast as comparing it in place, strided
         k = _CHANNEL[color]
-        if laser_channel is None:
-            laser_channel = cv2.extractChannel(np.ascontiguousarray(image), k)
-        clipped = laser_channel >= levels[k]
-    return clipped if clipped.any() else None
+        plane = cv2.extractChannel(np.ascontiguousarray(image), k) if laser_channel is None else laser_channel
+        level = levels[k]
+    # a frame without clipped pixels (the usual case) is told by its maximum: one SIMD pass, six
+    # times faster than the comparison and its test
+    return plane >= level if plane.max() >= level else None
 
 
 def _signal(image: np.ndarray, color: str) -> np.ndarray:
