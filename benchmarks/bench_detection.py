@@ -1,6 +1,7 @@
 """Laser trace detection: accuracy against the Cramér–Rao bound, honesty of sigma, candidates, speed.
 
-Run ``python benchmarks/bench_detection.py`` (about 3 minutes) or with ``--quick`` (under a minute).
+Run ``python benchmarks/bench_detection.py`` (about 3 minutes) or with ``--quick`` (under a minute);
+``--stages`` prints only where the stripe frame's time goes.
 Every figure is measured in this run on synthetic 8-bit frames (pixel-integrated Gaussians,
 amplitude 180 DN over 10 DN, noise 2 DN, rounded), next to:
 
@@ -30,6 +31,7 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from unittest import mock  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -37,6 +39,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from laser.synth import spot_image, stripe_image  # noqa: E402
 
+from scanrig.laser import fit, stripes  # noqa: E402
 from scanrig.laser.crb import crb_spot, crb_stripe, effective_noise  # noqa: E402
 from scanrig.laser.spots import detect_spots  # noqa: E402
 from scanrig.laser.stripes import detect_stripe  # noqa: E402
@@ -201,13 +204,70 @@ def speed(rng, repeats: int) -> dict:
             "cog_stripe": timing(lambda: cog_rows(stripe, BACKGROUND + 3 * NOISE), repeats)}
 
 
+#: Steps of detect_stripe timed by --stages, by the module and name they are called by, and their
+#: labels (indented: part of the step above).
+STAGES = {(stripes, "prepare_image"): "signal, noise and background", (stripes, "prescan"): "pre-scan",
+          (stripes, "_crossings"): "candidates, both directions", (stripes, "_fit_along"): "fit",
+          (stripes, "_start"): "  start values", (stripes, "fit_batch"): "  Levenberg-Marquardt",
+          (stripes, "parameter_covariance"): "  covariance", (fit, "erf"): "  erf of the model, in both",
+          (stripes, "make_table"): "table"}
+
+
+def stage_times(rng, repeats: int) -> tuple[dict[str, float], float]:
+    """Median CPU time, ms, of each of :data:`STAGES` (by label) and of the whole detect_stripe on
+    the speed frame: each step wrapped by a timer where detect_stripe looks it up (the calls are
+    unchanged)."""
+    stripe = stripe_image(SHAPE, lambda lines: 600.3 + 0.1 * lines, rng, AMPLITUDE, 1.5, BACKGROUND, NOISE)
+    spent = dict.fromkeys(STAGES.values(), 0.0)
+
+    def timed(label, fn):
+        def run(*args, **kwargs):
+            c0 = time.process_time()
+            out = fn(*args, **kwargs)
+            spent[label] += time.process_time() - c0
+            return out
+        return run
+
+    patches = [mock.patch.object(module, name, timed(label, getattr(module, name)))
+               for (module, name), label in STAGES.items()]
+    for patch in patches:
+        patch.start()
+    try:
+        detect_stripe(stripe)
+        per_run, total = {label: [] for label in spent}, []
+        for _ in range(repeats):
+            spent.update(dict.fromkeys(spent, 0.0))
+            c0 = time.process_time()
+            detect_stripe(stripe)
+            total.append(time.process_time() - c0)
+            for label, t in spent.items():
+                per_run[label].append(t)
+    finally:
+        for patch in patches:
+            patch.stop()
+    return {label: 1e3 * float(np.median(t)) for label, t in per_run.items()}, 1e3 * float(np.median(total))
+
+
+def print_stages(rng, repeats: int) -> None:
+    times, total = stage_times(rng, repeats)
+    print(f"\ndetect_stripe on the speed frame by stage, median CPU of {repeats} runs, ms and share (one core; "
+          f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+    for label, t in times.items():
+        print(f"  {label:34}{t:8.2f}{100 * t / total:7.1f} %")
+    print(f"  {'detect_stripe':34}{total:8.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer frames (under a minute)")
     parser.add_argument("--seed", type=int, default=5)
+    parser.add_argument("--stages", action="store_true", help="only the stripe frame's time by stage (seconds)")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     rng = np.random.default_rng(args.seed)
+    if args.stages:
+        print_stages(rng, 200)
+        return
     n_acc, n_cand, n_noise, reps = (1, 100, 20, 20) if args.quick else (4, 500, 100, 100)
     print(f"bench_detection  seed={args.seed}  quick={args.quick}  frames {SHAPE[1]}x{SHAPE[0]} 8-bit, "
           f"A={AMPLITUDE:g} DN over {BACKGROUND:g}, noise {NOISE:g} DN (+rounding)")
