@@ -32,6 +32,29 @@ def test_a_cloud_filtered_in_tiles_is_judged_and_denoised_throughout(monkeypatch
     assert np.mean(~result.inlier[far]) >= 0.95 and np.mean(~result.inlier[~bad]) <= 0.01
 
 
+def test_tiles_side_by_side_give_the_same_result_as_one_after_the_other(monkeypatch):
+    points, _, _, _ = tilted_plane_with_outliers(np.random.default_rng(4), n_side=40, eps=0.1)
+    monkeypatch.setattr(filter_module, "TILE_POINTS", 500)  # 1600 points: four tiles
+    threads_seen = []
+    filter_cloud = filter_module._filter_cloud
+
+    def recording(*args, **kwargs):
+        threads_seen.append(torch.get_num_threads())
+        return filter_cloud(*args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "_filter_cloud", recording)
+    results = []
+    for threads in (1, 2):  # 2: two tiles at a time, one torch thread each
+        torch.set_num_threads(threads)
+        results.append(filter_module.filter_points(points, rng=np.random.default_rng(0), settings=FAST,
+                                                   max_chart_points=300))
+    assert torch.get_num_threads() == 2 and threads_seen == [1] * 8
+    for name in ("denoised", "score", "inlier", "residual", "sigma"):
+        np.testing.assert_array_equal(getattr(results[0], name), getattr(results[1], name))
+    np.testing.assert_array_equal(results[0].fits.z_fit, results[1].fits.z_fit)
+    assert [c.core.tolist() for c in results[0].charts] == [c.core.tolist() for c in results[1].charts]
+
+
 def test_chart_groups_give_the_same_fits_side_by_side_or_one_after_the_other(monkeypatch):
     rng = np.random.default_rng(5)
     sizes = [300, 200, 120, 80]

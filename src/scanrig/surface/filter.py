@@ -17,7 +17,7 @@ from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits,
 from scanrig.surface.sheets import split_sheets
 from scanrig.surface.sparse import SPARSE_CHART_POINTS, SUPPORT_POINTS, local_quadratic_scores
 from scanrig.surface.surroundings import surroundings_score
-from scanrig.surface.tiles import TILE_POINTS, filter_in_tiles, tile_margin
+from scanrig.surface.tiles import TILE_POINTS, TILE_WORKERS, filter_in_tiles, tile_margin
 
 MIN_POINTS = 16  # below this a surface network (2 folds x several points) is meaningless
 #: A chart whose noise scale exceeds this multiple of the reference noise (``sigma_floor``, else
@@ -132,8 +132,8 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
     noise learnt on the dense charts (``sigma_floor`` or ``point_sigma`` when given; see
     :mod:`scanrig.surface.sparse`), and their charts' networks are fitted by least squares on
     the points kept, for projections only: they move no point. A cloud of more than
-    ``TILE_POINTS`` points is filtered in tiles with overlapping margins, one after the other, so
-    that memory is bounded by the tile (:mod:`scanrig.surface.tiles`).
+    ``TILE_POINTS`` points is filtered in tiles with overlapping margins, ``TILE_WORKERS`` at a
+    time on the CPU, so that memory is bounded by the tiles (:mod:`scanrig.surface.tiles`).
 
     Parameters
     ----------
@@ -208,8 +208,17 @@ def filter_points(points: np.ndarray, *, rng: np.random.Generator, q: float = 0.
                              train_mask=None if train_mask is None else train_mask[work],
                              point_sigma=None if point_sigma is None else point_sigma[work])
 
-    return filter_in_tiles(points, filter_tile, rng=rng, max_points=TILE_POINTS,
-                           margin=tile_margin(points, max_chart_points, rng))
+    # tiles side by side, torch's threads shared among them (the same arithmetic whatever the
+    # threads: every network trains on one, see ``fit_charts_by_size``), so that one tile's
+    # single-threaded steps (normals, charts, blending) overlap another's training
+    threads = torch.get_num_threads()
+    workers = max(1, min(threads, TILE_WORKERS)) if device == "cpu" else 1
+    torch.set_num_threads(threads // workers)
+    try:
+        return filter_in_tiles(points, filter_tile, rng=rng, max_points=TILE_POINTS,
+                               margin=tile_margin(points, max_chart_points, rng), workers=workers)
+    finally:
+        torch.set_num_threads(threads)
 
 
 def _filter_cloud(points: np.ndarray, *, rng: np.random.Generator, q: float, settings: FitSettings,

@@ -4,14 +4,15 @@ A cloud of more than ``TILE_POINTS`` points is cut into boxes of at most that ma
 (recursively at the median of the longest side, :func:`split_tiles`). Each tile is filtered with
 the points of a margin around its box (one chart radius, :func:`tile_margin`), so that the charts
 near its border see the surface beyond it as they would in the whole cloud; only the tile's own
-points take their outputs from it. The tiles run one after the other, in a fixed order, each
-with its own random generator spawned from the caller's: the result does not depend on the
-number of threads.
+points take their outputs from it. Each tile has its own random generator spawned from the
+caller's, and ``workers`` tiles are filtered side by side (threads; the caller gives each one
+thread): the result does not depend on the number of threads nor on the order the tiles end in.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -22,6 +23,9 @@ from scanrig.surface.robust_fit import concatenate_fits
 #: Clouds with more points are filtered in tiles of at most this many (before their margins).
 #: 100 000 points filtered at once peaked at 0.6-0.7 GB.
 TILE_POINTS = 150_000
+#: Most tiles filtered at the same time (one per core of the 2-core machine the filter is
+#: benchmarked on): memory is that of as many tiles.
+TILE_WORKERS = 2
 #: Points whose distance to their ``max_chart_points / 2``-th neighbour sets the margin
 #: (:func:`tile_margin`).
 MARGIN_SAMPLES = 64
@@ -78,7 +82,7 @@ def tile_margin(points: np.ndarray, max_chart_points: int, rng: np.random.Genera
 
 
 def filter_in_tiles(points: np.ndarray, filter_tile: Callable, *, rng: np.random.Generator, max_points: int,
-                    margin: float):
+                    margin: float, workers: int = 1):
     """Filter each tile with its margin and join the tiles' results.
 
     Parameters
@@ -94,6 +98,9 @@ def filter_in_tiles(points: np.ndarray, filter_tile: Callable, *, rng: np.random
         Largest tile before its margin (:func:`split_tiles`).
     margin : float
         Metres added to every side of a tile's box.
+    workers : int
+        Tiles filtered at the same time (threads), each with its own points and generator; memory
+        is that of as many tiles.
 
     Returns
     -------
@@ -106,17 +113,22 @@ def filter_in_tiles(points: np.ndarray, filter_tile: Callable, *, rng: np.random
                  "residual": np.empty(n), "sigma": np.empty(n), "sparse": np.zeros(n, bool)}
     charts, fits, scales = [], [], []
     tiles = split_tiles(points, max_points)
-    for tile, tile_rng in zip(tiles, rng.spawn(len(tiles))):
+
+    def run(tile: np.ndarray, tile_rng: np.random.Generator):
         low, high = points[tile].min(axis=0) - margin, points[tile].max(axis=0) + margin
         work = np.flatnonzero(np.all((points >= low) & (points <= high), axis=1))
-        own = np.isin(work, tile, assume_unique=True)
-        result = filter_tile(work, tile_rng)
-        for name, values in per_point.items():
-            values[work[own]] = getattr(result, name)[own]
-        tile_charts, kept = own_charts(result.charts, work, own)
-        charts += tile_charts
-        fits.append((result.fits, kept))
-        scales.append((result.uv_scale[kept], result.z_scale[kept]))
+        return work, filter_tile(work, tile_rng)
+
+    with ThreadPoolExecutor(max(1, workers)) as pool:  # the tiles' numpy and torch work releases the GIL
+        done = pool.map(run, tiles, rng.spawn(len(tiles)))
+        for tile, (work, result) in zip(tiles, done):  # in the tiles' order, whichever ends first
+            own = np.isin(work, tile, assume_unique=True)
+            for name, values in per_point.items():
+                values[work[own]] = getattr(result, name)[own]
+            tile_charts, kept = own_charts(result.charts, work, own)
+            charts += tile_charts
+            fits.append((result.fits, kept))
+            scales.append((result.uv_scale[kept], result.z_scale[kept]))
     offsets = np.cumsum([0] + [len(kept) for _, kept in fits[:-1]])
     rows = np.concatenate([offset + np.flatnonzero(kept) for offset, (_, kept) in zip(offsets, fits)])
     return replace(result, **per_point, charts=charts,
