@@ -23,14 +23,14 @@ def _plane_with_patch(rng, patch_heights):
     return points, estimate_normals(points), patch
 
 
-def _score_patch(points, normals, patch, pieces=4):
+def _score_patch(points, normals, patch, pieces=4, workers=1):
     """Cut the patch into untrusted charts along x and score them against the rest."""
     order = patch[np.argsort(points[patch, 0])]
     charts = [chart_from_core(points, normals, core, order, q=0.25, cos_max=0.5, overlap=0.25)
               for core in np.array_split(order, pieces)]
     owned = np.ones(len(points), bool)
     owned[patch] = False
-    return surroundings_score(points, normals, charts, owned, np.flatnonzero(owned), SIGMA, R)
+    return surroundings_score(points, normals, charts, owned, np.flatnonzero(owned), SIGMA, R, workers=workers)
 
 
 def test_a_blob_of_reflections_is_flagged_and_the_surface_is_not_judged():
@@ -44,6 +44,14 @@ def test_a_blob_of_reflections_is_flagged_and_the_surface_is_not_judged():
     # at 5 sigma the score of an exactly known surface would be 5; the quadratic's prediction
     # variance lowers it near the patch's middle, so not every point passes r = 4
     assert np.mean(score[patch] > R) > 0.9
+
+
+def test_the_charts_are_judged_alike_on_one_thread_or_several():
+    rng = np.random.default_rng(2)
+    points, normals, patch = _plane_with_patch(rng, lambda n: rng.uniform(5 * SIGMA, 30 * SIGMA, n))
+    scores = [_score_patch(points, normals, patch, pieces=6, workers=workers) for workers in (1, 3)]
+    assert np.isfinite(scores[0][patch]).mean() > 0.5
+    np.testing.assert_array_equal(scores[0], scores[1])
 
 
 def test_a_smooth_second_level_keeps_its_own_judgement_but_at_its_rim():

@@ -495,7 +495,8 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
     for c in np.flatnonzero(trusted & dense):
         owned[charts[c].core] = True
     score = np.fmax(score, surroundings_score(points, normals, [charts[c] for c in np.flatnonzero(~trusted & dense)],
-                                              owned, np.flatnonzero(owned & ~sparse & (score <= r)), sigma_ref, r))
+                                              owned, np.flatnonzero(owned & ~sparse & (score <= r)), sigma_ref, r,
+                                              workers=torch.get_num_threads()))
     if sparse_outputs is not None:
         judged = np.flatnonzero(sparse)
         score[judged], residual[judged], sigma[judged] = sparse_outputs

@@ -33,6 +33,8 @@ prediction variance at the point in units of the noise variance: far from the tr
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -47,7 +49,8 @@ OWN_NEIGHBOURS = 16
 
 
 def surroundings_score(points: np.ndarray, normals: np.ndarray, charts: list[Chart], owned: np.ndarray,
-                       reference: np.ndarray, sigma_ref: float, r: float, k: int = SURROUNDING_POINTS) -> np.ndarray:
+                       reference: np.ndarray, sigma_ref: float, r: float, k: int = SURROUNDING_POINTS, *,
+                       workers: int = 1) -> np.ndarray:
     """Score of the core points of untrusted charts against the trusted surface around them.
 
     Parameters
@@ -66,6 +69,9 @@ def surroundings_score(points: np.ndarray, normals: np.ndarray, charts: list[Cha
         Rejection point, in noise scales.
     k : int
         Reference points per quadratic (>= 7).
+    workers : int
+        Threads of the neighbour queries and of the charts' tests (the same scores whatever
+        their number).
 
     Returns
     -------
@@ -79,27 +85,32 @@ def surroundings_score(points: np.ndarray, normals: np.ndarray, charts: list[Cha
     candidates = np.concatenate(cores + [np.zeros(0, int)]).astype(int)
     if candidates.size == 0 or len(reference) < k:
         return score
-    height, g, spread, normal = _surrounding_quadratics(points, normals, candidates, reference, k)
+    height, g, spread, normal = _surrounding_quadratics(points, normals, candidates, reference, k, workers)
+    bounds = np.cumsum([0] + [core.size for core in cores])
+
+    def chart_rough(i: int) -> np.ndarray:  # one vectorised set of planes per chart (tens of charts)
+        sl = slice(bounds[i], bounds[i + 1])
+        return _rough(points, cores[i], _mean_axis(normal[None, sl])[0], height[sl], sigma_ref, r)
+
     rough = np.zeros(len(points), bool)
-    start = 0
-    for core in cores:  # one vectorised set of planes per chart (tens of charts)
-        sl = slice(start, start + core.size)
-        start += core.size
-        if core.size:
-            rough[core] = _rough(points, core, _mean_axis(normal[None, sl])[0], height[sl], sigma_ref, r)
+    tested = [i for i, core in enumerate(cores) if core.size]
+    with ThreadPoolExecutor(max(1, workers)) as pool:  # numpy and SciPy release the GIL inside
+        for i, chart_is_rough in zip(tested, pool.map(chart_rough, tested)):
+            rough[cores[i]] = chart_is_rough
     judged = rough[candidates] & (spread <= SURFACE_SCALE_FACTOR * sigma_ref)
     score[candidates[judged]] = np.abs(height[judged]) / (sigma_ref * np.sqrt(1.0 + g[judged]))
     return score
 
 
-def _surrounding_quadratics(points, normals, candidates, reference, k):
-    """Per candidate: the quadratic of its ``k`` nearest reference points in their normal's frame.
+def _surrounding_quadratics(points, normals, candidates, reference, k, workers):
+    """Per candidate: the quadratic of its ``k`` nearest reference points in their normal's frame
+    (neighbour queries on ``workers`` threads).
 
     Returns the candidate's height above it (m,), its prediction variance over the noise variance
     at the candidate (m,), the residual scale of the fit (m,) and the frame's normal (m, 3).
     """
     p = points[candidates]
-    _, nb = cKDTree(points[reference]).query(p, k=k)
+    _, nb = cKDTree(points[reference]).query(p, k=k, workers=workers)
     offsets = points[reference[nb]] - p[:, None, :]  # the candidate at the origin
     axes = frames_from_normals(_mean_axis(normals[reference[nb]]))
     local = np.einsum("mki,mij->mkj", offsets, axes)
