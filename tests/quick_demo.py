@@ -1,8 +1,10 @@
 """The quick demo, run once per test session for every test that reads it (``tests/conftest.py``).
 
 ``scanrig demo --quick`` is the slowest thing the tests run (minutes on a shared 2-core machine),
-so it runs twice per test session, and never more: both runs start together, each in a process
-of its own (the thread counts of OpenMP, OpenBLAS, MKL and torch are fixed when a process starts):
+so it runs twice per test run, and never more, however many pytest-xdist workers there are (the
+first worker that needs it runs it; the others wait for it and read its record). Both runs start
+together, each in a process of its own (the thread counts of OpenMP, OpenBLAS, MKL and torch are
+fixed when a process starts):
 
 - ``example``: the demo's ``--help`` example exactly as written
   (``scanrig demo --out demo_run --quick --seed 1``), two threads per library. The demo's tests,
@@ -15,7 +17,9 @@ Tests only read these folders; one that changes files works on a copy.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import json
 import os
 import re
 import shlex
@@ -86,6 +90,16 @@ class QuickDemo:
 
     example: DemoRun
     one_thread: DemoRun
+
+    def to_json(self) -> str:
+        """The record another test process reads back with :meth:`from_json`."""
+        return json.dumps({name: dataclasses.asdict(run) | {"out": str(run.out)}
+                           for name, run in (("example", self.example), ("one_thread", self.one_thread))})
+
+    @classmethod
+    def from_json(cls, text: str) -> QuickDemo:
+        runs = json.loads(text)
+        return cls(**{name: DemoRun(**(run | {"out": Path(run["out"])})) for name, run in runs.items()})
 
 
 def _start(command: str, cwd: Path, threads: int) -> subprocess.Popen:
