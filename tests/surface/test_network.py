@@ -1,5 +1,6 @@
 """Batched height-field networks, and charts of different sizes fitted in groups."""
 
+import dataclasses
 import itertools
 import platform
 import resource
@@ -15,7 +16,8 @@ from scanrig.surface.network import HeightFieldNets
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
                                       _heldout_prediction, _output_layer_irls, _size_batches,
-                                      _weighted_least_squares, _weighted_solve, fit_charts_by_size)
+                                      _weighted_least_squares, _weighted_solve, concatenate_fits, fit_charts,
+                                      fit_charts_by_size)
 
 from .conftest import SIGMA, tilted_plane_with_outliers
 
@@ -61,6 +63,23 @@ def test_charts_of_different_sizes_are_fitted_in_groups_and_returned_in_input_or
         assert np.sqrt(np.mean((fits.z_fit[c, :n] - z[c]) ** 2)) < 0.05
         np.testing.assert_allclose(predicted[c, :n], fits.z_fit[c, :n], atol=1e-5)
     assert fits.sigma.shape == (3,) and all(h["sigma_upper"].shape == (3,) for h in fits.history)
+
+
+def test_joined_fits_end_with_every_parts_final_state_when_one_stopped_early():
+    # a batch whose networks all converge early has fewer scale updates than the others; the
+    # joined history must still end with each chart's final state (the trust test reads it)
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(-1, 1, (2, 60, 2))
+    z = 0.2 * uv[..., 0] + rng.normal(0, 0.01, (2, 60))
+    settings = FitSettings(hidden=6, depth=1, robust_epochs=60, refit_epochs=20, update_every=20, start_epochs=10,
+                           n_boot=20)
+    full = fit_charts(uv, z, np.ones((2, 60), bool), settings=settings, rng=np.random.default_rng(0))
+    early = dataclasses.replace(full, history=[full.history[0], full.history[-1]])
+    assert len(full.history) == 4
+    joined = concatenate_fits([full, early], np.array([0, 3, 1, 2]))
+    final = np.concatenate([full.history[-1]["rejected"], early.history[-1]["rejected"]])[[0, 3, 1, 2]]
+    np.testing.assert_array_equal(joined.history[-1]["rejected"], final)
+    assert [h["epoch"] for h in joined.history] == [0, 60]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

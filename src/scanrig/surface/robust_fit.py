@@ -247,7 +247,8 @@ class ChartFits:
     a, b, beta : (C,) float arrays
         Final cut-offs and slope.
     history : list of dict
-        One entry per scale update: ``epoch``, ``sigma_upper`` (C,), ``rejected`` (C,) fraction.
+        One entry per scale update: ``epoch``, ``sigma_upper`` (C,), ``rejected`` (C,) fraction;
+        the last is every chart's final state.
     """
 
     nets: HeightFieldNets
@@ -763,10 +764,15 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
     def joined(values):
         return np.concatenate(values)[rows]
 
-    history = [{"epoch": entries[0]["epoch"],
-                "sigma_upper": joined([e["sigma_upper"] for e in entries]),
+    def merged(entries):
+        return {"epoch": entries[0]["epoch"], "sigma_upper": joined([e["sigma_upper"] for e in entries]),
                 "rejected": joined([e["rejected"] for e in entries])}
-               for entries in zip(*(p.history for p in parts))]
+
+    # every part's history ends with its final state, but a part whose networks all converged
+    # early has fewer updates before it: the updates all parts reached, then the final states
+    n_common = min(len(p.history) for p in parts) - 1
+    history = [merged(entries) for entries in zip(*(p.history[:n_common] for p in parts))]
+    history.append(merged([p.history[-1] for p in parts]))
     return ChartFits(nets=HeightFieldNets.concatenate([p.nets for p in parts], copies),
                      n_folds=parts[0].n_folds, z_fit=padded("z_fit"),
                      residual_heldout=padded("residual_heldout"),
