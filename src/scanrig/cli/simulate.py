@@ -38,7 +38,7 @@ def command(
     A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
     images, .jpg when its jpeg_quality is set.
 
-    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 50 --shots 6 --seed 1
+    Example: scanrig simulate demo_session --scene default --cameras 3 --mode spot --frames 20 --shots 4 --seed 1
 
     Example: scanrig simulate tt_session --rig turntable --scene turntable --frames 90 --seed 1
     """
