@@ -27,8 +27,9 @@ from scipy.special import ndtr
 
 #: Irrational steps (the R2 low-discrepancy sequence's) that give each pixel its own sample shift.
 R2_STEPS = np.array([0.7548776662466927, 0.5698402909980532])
-#: Pixels per block of edge pixels whose contributions are gathered at once.
-_BLOCK = 2048
+#: Pixels per block of edge pixels whose contributions are gathered at once (their (n, s², T)
+#: tap arrays stay in the CPU cache: at s = 8 blocks of 256 took half the time of 2048).
+_BLOCK = 256
 
 
 def edge_sample_offsets(centres: np.ndarray, s: int) -> np.ndarray:
@@ -52,11 +53,23 @@ def edge_sample_offsets(centres: np.ndarray, s: int) -> np.ndarray:
     ndarray of shape (N, s², 2)
         Offsets in [-0.5, 0.5)², pixels.
     """
+    index = centres[:, 1] * 65536.0 + centres[:, 0]
+    shift = index[:, None] * R2_STEPS[None, :]
+    shift -= np.floor(shift)                 # = np.mod(shift, 1.0) exactly (shift >= 0), cheaper
+    offsets = _base_pattern(s)[None] + shift[:, None, :]
+    # the sums lie in [0, 2): subtracting 1 from those >= 1 is np.mod(., 1.0) exactly (Sterbenz)
+    offsets -= offsets >= 1.0
+    offsets -= 0.5
+    return offsets
+
+
+@functools.lru_cache(maxsize=8)
+def _base_pattern(s: int) -> np.ndarray:
+    """The unshifted n-rooks pattern of :func:`edge_sample_offsets`, shape (s², 2), in [0, 1)²."""
     i, j = np.divmod(np.arange(s * s), s)
     base = np.column_stack([i + (j + 0.5) / s, j + (i + 0.5) / s]) / s
-    index = centres[:, 1] * 65536.0 + centres[:, 0]
-    shift = np.mod(index[:, None] * R2_STEPS[None, :], 1.0)
-    return np.mod(base[None] + shift[:, None, :], 1.0) - 0.5
+    base.flags.writeable = False
+    return base
 
 
 def reach_px(sigma_px: float) -> int:
@@ -135,6 +148,8 @@ def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: 
     kernel = _box_box_gauss(taps, sigma_px).astype(np.float32)
     out = cv2.sepFilter2D(uniform, -1, kernel, kernel, borderType=cv2.BORDER_REPLICATE).astype(np.float64)
     edge_radiance = edge_radiance.reshape(len(edge_idx), s * s)
+    out_flat = out.ravel()
+    ty, tx = np.meshgrid(taps.astype(np.int64), taps.astype(np.int64), indexing="ij")
     for a in range(0, len(edge_idx), _BLOCK):
         idx = edge_idx[a:a + _BLOCK]
         v, u = np.divmod(idx, w)
@@ -143,9 +158,11 @@ def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: 
         kx = _box_gauss_taps(offsets[:, :, 0], reach, sigma_px)                          # (n, s², T)
         ky = _box_gauss_taps(offsets[:, :, 1], reach, sigma_px)
         patch = np.matmul((ky * edge_radiance[a:a + _BLOCK, :, None]).transpose(0, 2, 1), kx) / (s * s)
-        ty, tx = np.meshgrid(taps.astype(np.int64), taps.astype(np.int64), indexing="ij")
         row = v[:, None, None] + ty[None]
         col = u[:, None, None] + tx[None]
         inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
-        out.ravel()[:] += np.bincount((row * w + col)[inside], weights=patch[inside], minlength=h * w)
+        target = (row * w + col)[inside]
+        # only the span of image the block reaches (the edge pixels are in raster order)
+        lo, hi = target.min(), target.max() + 1
+        out_flat[lo:hi] += np.bincount(target - lo, weights=patch[inside], minlength=hi - lo)
     return out.astype(np.float32)
