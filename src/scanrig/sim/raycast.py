@@ -156,9 +156,9 @@ class RayCaster:
             if k == 0:
                 continue
             if k < e - s:
-                prim, u, v, d = prim[hit], u[hit], v[hit], d[hit]
+                prim, u, v, d = prim[hit], u[hit], v[hit], np.take(d, hit, axis=0)
                 if not shared:
-                    o = o[hit]
+                    o = np.take(o, hit, axis=0)
             out = slice(m, m + k)
             idx[out] = hit + s
             g = np.take(self._plane, prim, axis=0)         # n, n·v0

@@ -343,8 +343,12 @@ class _BackgroundShading:
             cos_l[(cos_l < 0) | (ng @ lamp_dir >= 0)] = 0.0
             lit = np.flatnonzero(cos_l > 0)
             if lit.size:
-                shadow = self.caster.occluded(p[lit] + SURFACE_EPS_M * ng[lit],
-                                              np.broadcast_to(-lamp_dir, (lit.size, 3)), np.full(lit.size, _FAR_M))
+                # shadow-ray origins p + ε ng (row gathers by np.take: half the time of p[lit])
+                start = np.take(ng, lit, axis=0)
+                start *= SURFACE_EPS_M
+                start += np.take(p, lit, axis=0)
+                shadow = self.caster.occluded(start, np.broadcast_to(-lamp_dir, (lit.size, 3)),
+                                              np.full(lit.size, _FAR_M))
                 cos_l[lit[shadow]] = 0.0
             e_lamp = self.lamp_W_m2 * cos_l
             out += albedo * e_lamp / np.pi
@@ -369,7 +373,7 @@ def _albedo(materials, obj: np.ndarray, p: np.ndarray) -> np.ndarray:
     albedo = np.empty(len(obj))
     for j in present:
         sel = np.flatnonzero(obj == j)
-        albedo[sel] = materials[j].albedo_at(p[sel])
+        albedo[sel] = materials[j].albedo_at(np.take(p, sel, axis=0))
     return albedo
 
 

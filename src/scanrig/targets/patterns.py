@@ -96,7 +96,9 @@ def charuco_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: floa
     k = lookup[square]
     idx = np.flatnonzero(k >= 0)
     k = k[idx]
-    cell = np.floor((xy[idx] - marker_corners_m[k]) / marker_m * n_cells).astype(np.int64)
+    cell = np.take(xy, idx, axis=0)
+    cell -= np.take(marker_corners_m, k, axis=0)
+    cell = np.floor(cell / marker_m * n_cells).astype(np.int64)
     cx, cy = cell[:, 0], cell[:, 1]
     in_marker = (cx >= 0) & (cy >= 0) & (cx < n_cells) & (cy < n_cells)
     sel = np.flatnonzero(in_marker)
