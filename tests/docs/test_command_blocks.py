@@ -5,7 +5,8 @@ a block sees what the blocks before it wrote). The marks and rules that leave a 
 out (docs/contributing.md) are each reported as a skipped test with the page, line and reason.
 
 - ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
-  red spot laser, 4 cube poses, 20 frames) copied into the page's folder.
+  red spot laser, 4 cube poses, 20 frames) copied into the page's folder. It is the simulator
+  page's first session, made by the same command line, which runs once for both.
 - A ``scanrig simulate OUT ...`` or ``scanrig demo --out OUT`` command that opens blocks of
   several pages, identically, runs once; each of those pages gets a copy of the folder it wrote
   (the simulator and the demo are seeded: the copy is what the command writes) and runs the rest
@@ -36,8 +37,9 @@ RULES = {
     "install": re.compile(r"^python3? -m venv\b|^(\.|source) \S*\.venv/bin/activate\b|^(python3? -m )?pip install\b"),
     "test suite": re.compile(r"^python3? -m pytest\b"),
 }
-#: The small simulated session that stands in for a real rig's (``SESSION``).
-SMALL_SESSION = ["scanrig", "simulate", "{out}", "--frames", "20", "--shots", "4", "--seed", "1"]
+#: The small simulated session that stands in for a real rig's (``SESSION``): the first command of
+#: docs/simulator.md, so that one run serves both.
+SMALL_SESSION = "scanrig simulate demo --scene default --cameras 3 --mode spot --frames 20 --shots 4 --seed 1"
 #: Seconds one block may take: a guard against a hang. The README's full demo takes about 4 min on
 #: 2 idle cores, and over 10 min beside another test worker at load average 8 to 9.
 BLOCK_TIMEOUT_S = 1800
@@ -91,7 +93,7 @@ def _plan(page: Path) -> tuple[list[tuple[Block, str]], list[tuple[str, str, str
 
 def _shared_simulations(plans) -> set[str]:
     """The ``scanrig simulate OUT ...`` and ``scanrig demo --out OUT`` lines that open blocks of
-    two or more pages."""
+    two or more pages, and :data:`SMALL_SESSION` where it opens a block."""
     pages_of: dict[str, set[Path]] = {}
     for page, (to_run, _) in plans.items():
         for _, script in to_run:
@@ -99,7 +101,7 @@ def _shared_simulations(plans) -> set[str]:
             if (re.match(r"scanrig (simulate [\w.-]+ |demo --out [\w.-]+$)", first)
                     and not re.search(r"[;&|<>$`]", first)):
                 pages_of.setdefault(first, set()).add(page)
-    return {line for line, pages in pages_of.items() if len(pages) > 1}
+    return {line for line, pages in pages_of.items() if len(pages) > 1 or line == SMALL_SESSION}
 
 
 PLANS = {page: _plan(page) for page in PAGES}
@@ -128,15 +130,11 @@ class Sessions:
 
     def __init__(self, root: Path):
         self.root = root
-        self._raw = None
         self._simulated: dict[str, Path | None] = {}   # None: the command failed
 
     def raw(self) -> Path:
         """The small simulated session that stands for ``SESSION``."""
-        if self._raw is None:
-            self._raw = self.root / "raw"
-            _run(" ".join(SMALL_SESSION).format(out=self._raw), self.root, "the small session")
-        return self._raw
+        return self.simulated(SMALL_SESSION, "the small session")
 
     def simulated(self, command: str, where: str) -> Path:
         """The folder that ``command`` (a line of :data:`SHARED_SIMULATIONS`) writes, run once."""
