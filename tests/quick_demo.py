@@ -1,4 +1,4 @@
-"""The quick demo, run once per test session for every test that reads it (``tests/conftest.py``).
+"""The quick demo, run once per test run for every test that reads it (``tests/conftest.py``).
 
 ``scanrig demo --quick`` is the slowest thing the tests run (minutes on a shared 2-core machine),
 so it runs twice per test run, and never more, however many pytest-xdist workers there are (the
