@@ -31,6 +31,7 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from contextlib import ExitStack  # noqa: E402
 from unittest import mock  # noqa: E402
 
 import cv2  # noqa: E402
@@ -228,11 +229,9 @@ def stage_times(rng, repeats: int) -> tuple[dict[str, float], float]:
             return out
         return run
 
-    patches = [mock.patch.object(module, name, timed(label, getattr(module, name)))
-               for (module, name), label in STAGES.items()]
-    for patch in patches:
-        patch.start()
-    try:
+    with ExitStack() as patches:
+        for (module, name), label in STAGES.items():
+            patches.enter_context(mock.patch.object(module, name, timed(label, getattr(module, name))))
         detect_stripe(stripe)
         per_run, total = {label: [] for label in spent}, []
         for _ in range(repeats):
@@ -242,9 +241,6 @@ def stage_times(rng, repeats: int) -> tuple[dict[str, float], float]:
             total.append(time.process_time() - c0)
             for label, t in spent.items():
                 per_run[label].append(t)
-    finally:
-        for patch in patches:
-            patch.stop()
     return {label: 1e3 * float(np.median(t)) for label, t in per_run.items()}, 1e3 * float(np.median(total))
 
 
@@ -261,7 +257,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer frames (under a minute)")
     parser.add_argument("--seed", type=int, default=5)
-    parser.add_argument("--stages", action="store_true", help="only the stripe frame's time by stage (seconds)")
+    parser.add_argument("--stages", action="store_true", help="only the stripe frame's time by stage (ms)")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     rng = np.random.default_rng(args.seed)
