@@ -138,7 +138,11 @@ def estimate_noise(signal: np.ndarray, step: float = 1.0, local: bool = False):
 
 def effective_noise(signal: np.ndarray) -> float:
     """Noise σ of an image for fits over a few pixels, DN: :func:`estimate_noise`, scaled by
-    :func:`correlated_noise_factor` where the noise is correlated over a few pixels."""
+    :func:`correlated_noise_factor` where the noise is correlated over a few pixels.
+
+    ``signal`` is an ``(H, W)`` array, or anything with its ``shape`` and ``dtype`` that returns
+    its rows for ``signal[rows]`` (``rows (n,)`` ints): only the bands of
+    :func:`high_pass_bands` are read."""
     rows, high_pass = high_pass_bands(signal)
     sigma = noise_from_bands(rows, high_pass, signal.shape, 1.0, local=False)
     factor = correlated_noise_factor(signal, rows, sigma)
