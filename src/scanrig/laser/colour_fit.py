@@ -37,6 +37,7 @@ import numpy as np
 from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, _spd_inverse,
                                centre_misfit, fit_batch, integrated_profile, lever_misfit)
 from scanrig.laser.image import ColourFrames
+from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
 from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step
 
@@ -104,13 +105,13 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     """
     offs = np.arange(-half, half + 1)
     along = pos[:, None] + offs  # (n, W)
-    across = np.broadcast_to(line[:, None], along.shape)
-    y, usable, noise = _windows(colour, across, along) if rows else _windows(colour, along, across)
+    frame, frame_dark = _line_pixels(colour, rows, line, pos - half, offs.size)  # (n, W, 3)
+    inside = (along >= 0) & (along < colour.image.shape[1 if rows else 0])
+    y, usable, noise = _differences(colour, frame, frame_dark, inside)
     trial = np.exp(-0.5 * (offs[None, :] / _START_WIDTHS[:, None]) ** 2)  # (k, W)
     lower, upper = _bounds(colour, half, 1)
     x = offs.astype(float)
     laser = colour.laser_channel
-    frame = _raw(colour, across, along) if rows else _raw(colour, along, across)  # (n, W, 3)
     raw = frame[..., laser]
     # a pixel at 0 DN is censored at the black level (its value unknown below it): out of the test
     plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable & (frame > 0), laser, axis=2),
@@ -335,21 +336,32 @@ def _windows(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray):
     h, w = colour.image.shape[:2]
     inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
     rows, cols = np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)
-    raw = colour.image[rows, cols]
-    usable = inside[:, :, None] & (raw < colour.clip_level)
-    y = raw.astype(np.float64)
-    if colour.dark is not None:
-        raw_dark = colour.dark[rows, cols]
-        usable &= raw_dark < colour.clip_level
-        y -= raw_dark
+    return _differences(colour, colour.image[rows, cols], None if colour.dark is None else colour.dark[rows, cols],
+                        inside)
+
+
+def _line_pixels(colour: ColourFrames, rows: bool, line: np.ndarray, start: np.ndarray, length: int):
+    """The frame and the dark frame (None without one), ``(n, length, 3)``, DN, along rows (or
+    columns) ``line (n,)`` from ``start (n,)`` on, pixels beyond the frame repeating its edge: copied
+    run by run (:func:`~scanrig.laser.pixels.pixel_blocks`), not pixel by pixel, and once for both
+    the fit's data and the clipped runs' test (on the rendered 1080p frame, with the windows' float
+    copies and masks 1.2 ms instead of 3.2; 1.7 instead of 4.7 with a laser-off frame)."""
+
+    def gather(image):
+        return pixel_blocks(image if rows else image.transpose(1, 0, 2), line, start, 1, length)[:, 0]
+
+    return gather(colour.image), None if colour.dark is None else gather(colour.dark)
+
+
+def _differences(colour: ColourFrames, frame: np.ndarray, frame_dark: np.ndarray | None, inside: np.ndarray):
+    """The pixels ``frame (n, M, 3)`` less ``frame_dark`` (or None), float64 DN, which of them are
+    usable (``inside (n, M)`` the frame, clipped in neither frame), and each channel's noise ``(3,)``."""
+    usable = inside[:, :, None] & (frame < colour.clip_level)
+    y = frame.astype(np.float64)
+    if frame_dark is not None:
+        usable &= frame_dark < colour.clip_level
+        y -= frame_dark
     return y, usable, colour.channel_noise
-
-
-def _raw(colour: ColourFrames, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The frame (not dark-subtracted) at ``rows, cols (n, M)``, ``(n, M, 3)``, DN; pixels outside
-    the frame repeat its border."""
-    h, w = colour.image.shape[:2]
-    return colour.image[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]
 
 
 def _bounds(colour: ColourFrames, half: int, n_axes: int):
