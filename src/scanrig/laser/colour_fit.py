@@ -423,7 +423,7 @@ def _fit_projected(y, usable, noise, x, p0, lower, upper, n_iter=12):
     n = y.shape[0]
     y_minor, mask = _minor(y, usable, noise)
     y_minor *= mask  # the projection's sums of the data need no weights
-    normal, complete = _projection_1d(x, noise, (lower, upper), usable.all(axis=(0, 1)))
+    normal, complete = _projection_1d(x, noise, (lower, upper))
     reduced = fit_batch(None, y_minor, mask, p0[:, :2], lower[:2], upper[:2], n_iter, minor=True, normal=normal,
                         noise_var=np.ones(n))
     w = None if mask.all() else mask.astype(np.float64)
@@ -496,14 +496,10 @@ def _lever_1d(x: np.ndarray, noise: np.ndarray):
 _PAIRS = ((0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2))
 
 
-def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.ndarray],
-                   whole: np.ndarray | None = None):
+def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]):
     """Variable projection of :func:`_model_1d`: its cost and normal equations over the centre and
     width alone, each channel's amplitude and background at their least-squares optimum for the
-    profile at hand (clipped to ``bounds``, the fit's ``(8,)`` lower and upper bounds). ``whole``
-    ``(3,)`` bool: the channels fitted on every pixel of every window (default none), whose sums
-    need no weights: one unweighted sum serves them all (a red stripe clips red only; on the
-    rendered 1080p frame a third of each evaluation's time).
+    profile at hand (clipped to ``bounds``, the fit's ``(8,)`` lower and upper bounds).
 
     Returns ``normal(p (2, k), y (3 W, k), w (3 W, k) or None) -> (Σ r² (k,), S (2, 2, k), Jᵀr (2,
     k))`` for :func:`scanrig.laser.fit.fit_batch` (``y`` zero outside the mask ``w``), and
@@ -525,7 +521,6 @@ def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, n
     w_px = x.size
     sigma = np.tile(np.asarray(noise, float)[:, None], (2, 1))  # (6, 1): the amplitudes', then the backgrounds'
     low, high = bounds[0][2:8, None] / sigma, bounds[1][2:8, None] / sigma  # whitened
-    whole = np.zeros(3, bool) if whole is None else whole
 
     def terms(p, y, w):
         k = p.shape[1]
@@ -541,9 +536,7 @@ def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, n
             s_w = np.full((3, k), float(w_px))
         else:
             w3 = w.reshape(3, w_px, k)
-            unweighted = prods.sum(axis=1) if whole.any() else None
-            sums = np.stack([unweighted if whole[c] else np.einsum("qmn,mn->qn", prods, w3[c]) for c in range(3)],
-                            axis=1)  # Σ w f_i f_j, Σ w f_i
+            sums = np.stack([np.einsum("qmn,mn->qn", prods, w3[c]) for c in range(3)], axis=1)  # Σ w f_i f_j, Σ w f_i
             s_w = w3.sum(axis=1)
         gram = {pair: sums[q] for q, pair in enumerate(_PAIRS)}  # (3, k) each
         s_f = sums[6:]
