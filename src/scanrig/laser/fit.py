@@ -448,10 +448,13 @@ def _step_terms(hess: np.ndarray, grad: np.ndarray, step: np.ndarray):
     ``hess (P, P, k)`` (lower triangle read) and ``grad (P, k)``: the Gauss–Newton model lowers the
     cost by their difference."""
     n_par = step.shape[0]
-    quad = np.einsum("in,in->n", hess.reshape(n_par * n_par, -1)[:: n_par + 1] * step, step)
+    # sums over the few parameters as products summed along axis 0, not einsum, whose fixed cost
+    # is most of the time here (the same sums in the same order: same values)
+    diag_step = hess.reshape(n_par * n_par, -1)[:: n_par + 1] * step
+    quad = (diag_step * step).sum(axis=0)
     for i in range(1, n_par):
-        quad += 2.0 * np.einsum("jn,jn->n", hess[i, :i], step[:i]) * step[i]
-    return 2.0 * np.einsum("in,in->n", grad, step), quad
+        quad += 2.0 * (hess[i, :i] * step[:i]).sum(axis=0) * step[i]
+    return 2.0 * (grad * step).sum(axis=0), quad
 
 
 def _clip(p: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
