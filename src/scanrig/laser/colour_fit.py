@@ -247,11 +247,12 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     unclipped = raw < clip
     v = np.where(unclipped, raw, clip).astype(np.float64)
     # the clipped pixels sort after every unclipped one, so the unclipped pixels' median is that of
-    # the first `count` sorted (np.nanmedian takes ten times longer); an all-clipped window has no
-    # background: NaN, never applies
+    # the first `count` sorted (np.nanmedian takes ten times longer; NumPy's stable sort of 8- and
+    # 16-bit integers is a radix sort, three times faster here than the default); an all-clipped
+    # window has no background: NaN, never applies
     count = unclipped.sum(axis=1)
     middle = np.maximum(np.stack([(count - 1) // 2, count // 2], axis=1), 0)
-    background = np.take_along_axis(np.sort(raw, axis=1), middle, axis=1).mean(axis=1)
+    background = np.take_along_axis(np.sort(raw, axis=1, kind="stable"), middle, axis=1).mean(axis=1)
     background[count == 0] = np.nan
     level = 0.5 * (background + clip)
     bright = v >= level[:, None]
