@@ -156,3 +156,24 @@ def test_an_unreadable_view_is_a_one_line_error_naming_it(tmp_path, capsys, corr
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and errors[0].startswith(f"error: {folder / '15.jpg'}: {reason}")
     assert not (tmp_path / "rig.toml").exists()
+
+
+def test_views_in_a_format_it_does_not_read_are_named(tmp_path, capsys):
+    """BMP views: one error line naming the first view and the formats read, exit 2; before, the
+    folder of 2 views was said to hold no calibration images."""
+    root = left_session(tmp_path, lambda a: a, ".bmp", views=2)
+    assert main(["calibrate", str(root), "--no-plots", "--no-cross-validate"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {root / 'calibration' / 'left' / '01.bmp'}: ")
+    assert ".png" in errors[0] and not (root / "rig.toml").exists()
+
+
+def test_light_plane_views_in_a_format_it_does_not_read_are_named(tmp_path, capsys):
+    """A BMP light-plane view: named, exit 2; before, the folder was said to hold no light-plane images."""
+    root = left_session(tmp_path, views=2)
+    (root / "light_plane" / "left").mkdir(parents=True)
+    bmp = root / "light_plane" / "left" / "01.bmp"
+    assert cv2.imwrite(str(bmp), read_image(OPENCV / "left01.jpg"))
+    assert main(["calibrate", str(root), "--no-plots", "--no-cross-validate", "--light-plane", "--color", "red"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {bmp}: ") and ".png" in errors[0]

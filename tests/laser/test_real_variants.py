@@ -403,3 +403,13 @@ def test_detect_verb_on_12_bit_data_in_16_bit_files(tmp_path, frames, reference,
     assert detect_cli(tmp_path, *(f.astype(np.uint16) * 16 for f in frames), ".png") == 0
     share = stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference)
     assert share >= baseline[True] - GEOMETRIC_MARGIN
+
+
+def test_detect_verb_on_frames_in_a_format_it_does_not_read(tmp_path, frames, capsys):
+    """BMP frames (as some camera tools save them): one error line naming the first frame and the
+    formats read, exit 2; before, ``0 candidates in 0 camera frames``, exit 0 and an empty
+    traces.parquet."""
+    assert detect_cli(tmp_path, *frames, ".bmp") == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {tmp_path / 'scan' / 'cam0' / '00000.bmp'}: ")
+    assert ".png" in errors[0] and not (tmp_path / "traces.parquet").exists()

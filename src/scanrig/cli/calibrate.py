@@ -80,7 +80,7 @@ def command(
 def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
     """``camera -> {stem: path}`` of the light-plane images, and the laser colour; checked before solving."""
     from scanrig.errors import FileFormatError, InputError
-    from scanrig.io.session import Session, natural_key
+    from scanrig.io.session import Session, images_by_stem, natural_key
     from scanrig.laser.image import LASER_COLORS
 
     sess = Session(session)
@@ -91,7 +91,7 @@ def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
     folder = sess.root / "light_plane"
     cameras = sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: natural_key(p.name)) \
         if folder.is_dir() else []
-    images = {cam.name: paths for cam in cameras if (paths := _images_by_stem(cam))}
+    images = {cam.name: paths for cam in cameras if (paths := images_by_stem(cam))}
     if not images:
         raise FileFormatError(folder, "no light-plane images (light_plane/<camera>/<shot>.png: the target with "
                                       "the laser stripe across it)")
@@ -99,20 +99,6 @@ def _light_plane_inputs(session: Path, color: str | None) -> tuple[dict, str]:
     if unknown:
         raise FileFormatError(folder, f"cameras {unknown} have light-plane images but no calibration/ folder")
     return images, color
-
-
-def _images_by_stem(folder: Path) -> dict:
-    """``stem -> path`` of the images in a folder, in natural order."""
-    from scanrig.errors import FileFormatError
-    from scanrig.io.session import IMAGE_SUFFIXES, natural_key
-
-    out = {}
-    for path in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
-        if path.suffix.lower() in IMAGE_SUFFIXES:
-            if path.stem in out:
-                raise FileFormatError(path, f"two images share the stem {path.stem!r} (also {out[path.stem].name})")
-            out[path.stem] = path
-    return out
 
 
 def _light_planes(session: Path, result, images: dict, color: str, seed: int) -> list:
@@ -125,7 +111,7 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     import numpy as np
 
     from scanrig.calibration.pipeline import locate_target, sample_states, shot_index
-    from scanrig.io.session import read_image
+    from scanrig.io.session import images_by_stem, read_image
     from scanrig.reconstruct.light_plane_session import LightPlanePose, calibrate_light_plane_images
 
     out = []
@@ -133,7 +119,7 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     states = sample_states(result, CALIBRATION_SAMPLES, rng)
     for cam_name, paths in images.items():
         camera = result.rig[cam_name]
-        laser_off = _images_by_stem(Path(session) / "calibration" / cam_name)
+        laser_off = images_by_stem(Path(session) / "calibration" / cam_name)
         poses, skipped, solved = [], [], {}
         for stem, path in paths.items():
             index = shot_index(result, stem) if stem in laser_off else None

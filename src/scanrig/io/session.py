@@ -24,6 +24,10 @@ from scanrig.errors import FileFormatError, InputError
 from scanrig.io.toml_fields import check_keys, read_toml
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+#: Image files that cameras and their tools save but scanrig does not read: in a camera folder they
+#: are an error naming them, not frames silently left out.
+UNREAD_IMAGE_SUFFIXES = (".bmp", ".dib", ".pgm", ".ppm", ".pnm", ".pbm", ".pfm", ".webp", ".jp2", ".gif", ".exr",
+                         ".hdr", ".avif", ".heic", ".dng", ".raw", ".nef", ".cr2", ".arw")
 #: Stem of the optional laser-off frame in ``scan/<camera>/``.
 DARK_STEM = "dark"
 STAGES = ("calibration", "calibration_intrinsic", "scan")
@@ -116,17 +120,17 @@ class Session:
         return list(order)
 
     def image_paths(self, stage: str, camera: str) -> dict[str, Path]:
-        """``stem -> path`` of a camera's images in a stage, in natural order (dark frame excluded)."""
+        """``stem -> path`` of a camera's images in a stage, in natural order (dark frame excluded).
+
+        Raises
+        ------
+        FileFormatError
+            If the camera folder is missing, or as :func:`images_by_stem`.
+        """
         folder = self._stage_dir(stage) / camera
         if not folder.is_dir():
             raise FileFormatError(folder, "camera folder not found")
-        paths = {}
-        for p in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
-            if p.suffix.lower() in IMAGE_SUFFIXES and p.stem != DARK_STEM:
-                if p.stem in paths:
-                    raise FileFormatError(p, f"two images share the stem {p.stem!r} (also {paths[p.stem].name})")
-                paths[p.stem] = p
-        return paths
+        return images_by_stem(folder, skip_stem=DARK_STEM)
 
     def dark_path(self, camera: str) -> Path | None:
         """The laser-off frame of a camera in ``scan/``, if there is one."""
@@ -156,6 +160,34 @@ class Session:
         if not folder.is_dir():
             raise FileFormatError(folder, f"{stage} folder not found in session")
         return folder
+
+
+def images_by_stem(folder: Path, skip_stem: str | None = None) -> dict[str, Path]:
+    """``stem -> path`` of the images in a folder, in natural order.
+
+    Parameters
+    ----------
+    folder : Path
+        A camera's folder of images.
+    skip_stem : str, optional
+        Leave out the images of this stem (the laser-off frame, ``DARK_STEM``).
+
+    Raises
+    ------
+    FileFormatError
+        If two images share a stem, or an image is in a format scanrig does not read
+        (``UNREAD_IMAGE_SUFFIXES``, e.g. ``.bmp``): it would be a frame silently left out.
+    """
+    paths = {}
+    for p in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
+        if p.suffix.lower() in UNREAD_IMAGE_SUFFIXES:
+            raise FileFormatError(p, f"{p.suffix} images are not read; save the frames as "
+                                     f"{', '.join(IMAGE_SUFFIXES)} (PNG and TIFF are lossless)")
+        if p.suffix.lower() in IMAGE_SUFFIXES and p.stem != skip_stem:
+            if p.stem in paths:
+                raise FileFormatError(p, f"two images share the stem {p.stem!r} (also {paths[p.stem].name})")
+            paths[p.stem] = p
+    return paths
 
 
 def session_file(path: str | Path, name: str, producer: str) -> Path:
