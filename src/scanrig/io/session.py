@@ -281,8 +281,18 @@ def _stamp(path: Path) -> tuple[int, int]:
     return st.st_ino, st.st_mtime_ns
 
 
+#: PNG files start with this signature; the byte at ``_PNG_COLOUR_TYPE_AT`` (in the IHDR chunk that
+#: must follow it) is the colour type, 4 for grey with alpha, which OpenCV decodes as BGRA.
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_COLOUR_TYPE_AT = 25
+_PNG_GREY_ALPHA = 4
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an 8- or 16-bit image as stored (grey ``(H, W)`` or colour ``(H, W, 3)`` in RGB order).
+
+    An alpha channel is dropped: a grey PNG with alpha is grey, not three equal colour channels
+    (in which a colour laser's signal, its channel minus the others, would be 0).
 
     Raises
     ------
@@ -303,12 +313,20 @@ def read_image(path: str | Path) -> np.ndarray:
     if img.dtype not in (np.uint8, np.uint16):
         raise FileFormatError(path, f"expected an 8- or 16-bit image, got {img.dtype}")
     if img.ndim == 3:
+        if img.shape[2] == 4 and _is_grey_alpha_png(data):
+            return np.ascontiguousarray(img[:, :, 0])
         if img.shape[2] == 4:
             img = img[:, :, :3]
         elif img.shape[2] != 3:
             raise FileFormatError(path, f"expected 1 or 3 channels, got {img.shape[2]}")
         img = np.ascontiguousarray(img[:, :, ::-1])
     return img
+
+
+def _is_grey_alpha_png(data: np.ndarray) -> bool:
+    """Whether the file's bytes ``data`` (uint8) are a PNG of colour type grey with alpha."""
+    return (data[:len(_PNG_SIGNATURE)].tobytes() == _PNG_SIGNATURE and data.size > _PNG_COLOUR_TYPE_AT
+            and data[_PNG_COLOUR_TYPE_AT] == _PNG_GREY_ALPHA)
 
 
 def describe_image(shape: tuple[int, ...], dtype) -> str:
