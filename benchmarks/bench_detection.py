@@ -208,9 +208,11 @@ def speed(rng, repeats: int) -> dict:
 #: Steps of detect_stripe timed by --stages, by the module and name they are called by, and their
 #: labels (indented: part of the step above).
 STAGES = {(stripes, "prepare_image"): "signal, noise and background", (stripes, "prescan"): "pre-scan",
-          (stripes, "_crossings"): "candidates, both directions", (stripes, "_fit_along"): "fit",
-          (stripes, "_start"): "  start values", (stripes, "fit_batch"): "  Levenberg-Marquardt",
-          (stripes, "parameter_covariance"): "  covariance", (fit, "erf"): "  erf of the model, in both",
+          (stripes, "_crossings"): "candidates, both directions",
+          (stripes, "_fit_along"): "fit of the clipped candidates", (stripes, "_line_windows"): "the others' windows",
+          (stripes, "_start"): "  start values", (stripes, "_fit_lines"): "their fit, both directions",
+          (stripes, "fit_batch"): "  Levenberg-Marquardt", (stripes, "parameter_covariance"): "  covariance",
+          (fit, "erf"): "  erf of the model, in both fits",
           (stripes, "make_table"): "table"}
 
 
