@@ -16,6 +16,9 @@ _PILE_RATIO = 5.0
 _PILE_BELOW = 4
 _ABOVE_SHARE = 0.01
 _RIM_FRACTION = 0.5
+#: Bit depths of cameras whose data 16-bit files hold as stored (low bits): such frames never
+#: exceed ``2**bits - 1``, and pixels at that value are clipped.
+_SENSOR_BITS = (10, 12, 14)
 
 
 def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np.ndarray:
@@ -34,7 +37,9 @@ def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np
       continues past the clip, so its run is entered from high values, whereas a flat printed or
       rendered area ends in a step down to the scene, or up to a brighter trace crossing it.
 
-    The highest such value is the level; the dtype's maximum when there is none.
+    The highest such value is the level. When there is none: the dtype's maximum, or for a 16-bit
+    frame (with its dark frame) whose largest value in any channel is ``2**b - 1`` for ``b`` in
+    ``_SENSOR_BITS``, that value (a ``b``-bit camera's data in 16-bit files, reaching its top).
 
     Parameters
     ----------
@@ -52,17 +57,18 @@ def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np
 
     full_scale = int(np.iinfo(image.dtype).max)
     frames = [np.ascontiguousarray(f if f.ndim == 3 else f[:, :, None]) for f in (image, dark) if f is not None]
-    levels = np.full(frames[0].shape[2], float(full_scale))
-    for c in range(levels.size):
-        # OpenCV's histogram of the interleaved frame: several times faster than np.bincount of a plane
-        counts = sum(cv2.calcHist([f], [c], None, [full_scale + 1], [0, full_scale + 1]).ravel() for f in frames)
-        counts = counts.astype(np.int64)
+    # OpenCV's histogram of the interleaved frame: several times faster than np.bincount of a plane
+    histograms = [sum(cv2.calcHist([f], [c], None, [full_scale + 1], [0, full_scale + 1]).ravel()
+                      for f in frames).astype(np.int64) for c in range(frames[0].shape[2])]
+    top = _sensor_top(max(int(np.flatnonzero(counts)[-1]) for counts in histograms), full_scale)
+    levels = np.full(len(histograms), float(top))
+    for c, counts in enumerate(histograms):
         above = counts.sum() - np.cumsum(counts)
         below = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(_PILE_BELOW, counts.dtype), counts[:-1]],
                                                          _PILE_BELOW).max(axis=1)
         pile = ((counts >= max(_PILE_MIN_PIXELS, _PILE_MIN_SHARE * counts.sum()))
                 & (counts >= _PILE_RATIO * below) & (above <= _ABOVE_SHARE * counts))
-        pile[full_scale] = False  # the dtype's maximum is the default anyway
+        pile[top:] = False  # the default level, and nothing is above it
         median = int(np.searchsorted(np.cumsum(counts), 0.5 * counts.sum()))
         for level in np.flatnonzero(pile)[::-1]:
             rim = []
@@ -70,7 +76,17 @@ def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np
                 plateau = (f[:, :, c] == level).view(np.uint8)
                 ring = cv2.dilate(plateau, np.ones((3, 3), np.uint8)) > plateau
                 rim.append(f[:, :, c][ring])
-            if median + _RIM_FRACTION * (level - median) <= np.median(np.concatenate(rim)) < level:
+            rim = np.concatenate(rim)
+            # a plateau without a rim fills the channel: a flat channel, nothing clipped
+            if rim.size and median + _RIM_FRACTION * (level - median) <= np.median(rim) < level:
                 levels[c] = float(level)
                 break
     return levels
+
+
+def _sensor_top(largest: int, full_scale: int) -> int:
+    """The value a frame whose largest value is ``largest`` DN cannot exceed: ``2**b - 1`` when
+    ``largest`` is exactly that for ``b`` in ``_SENSOR_BITS`` (and the dtype is 16-bit), else
+    ``full_scale``."""
+    tops = [2**bits - 1 for bits in _SENSOR_BITS if 2**bits - 1 < full_scale]
+    return largest if largest in tops else full_scale
