@@ -15,9 +15,9 @@ from scanrig.errors import InputError
 from scanrig.surface.network import HeightFieldNets
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
-                                      _heldout_prediction, _output_layer_irls, _size_batches,
-                                      _weighted_least_squares, _weighted_solve, concatenate_fits, fit_charts,
-                                      fit_charts_by_size)
+                                      _heldout_prediction, _irls_weight, _output_layer_irls, _robust_loss,
+                                      _size_batches, _weighted_least_squares, _weighted_solve, concatenate_fits,
+                                      fit_charts, fit_charts_by_size)
 
 from .conftest import SIGMA, tilted_plane_with_outliers
 
@@ -37,6 +37,39 @@ def test_copies_are_independent_and_output_layer_is_linear_in_features(architect
     uv2 = uv.clone()
     uv2[0] += 1.0
     torch.testing.assert_close(nets(uv2)[1:], nets(uv)[1:])
+
+
+@pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2), ("mlp", 3)])
+def test_hand_written_backward_is_autograds_gradient(architecture, depth):
+    # blocks 0 and 2 share copy 1, copy 2 has none: its gradient must be zero
+    gen = torch.Generator().manual_seed(4)
+    nets = HeightFieldNets(3, hidden=6, depth=depth, architecture=architecture, generator=gen)
+    nets.set_output(torch.randn(3, 7, generator=gen))
+    uv = torch.rand(3, 11, 2, generator=gen, dtype=torch.float32) * 2 - 1
+    copies = torch.tensor([1, 0, 1])
+    grad_output = torch.randn(3, 11, generator=gen)
+    out = torch.baddbmm(nets.biases[-1][copies], nets.weights[-1][copies].transpose(1, 2),
+                        nets.features(uv, copies))[:, 0]
+    expected = torch.autograd.grad((out * grad_output).sum(), nets.hidden_parameters())
+    layers = nets.training_activations(uv, copies)
+    torch.testing.assert_close(layers[-1][:, :-1], nets.features(uv, copies).detach())
+    nets.backward(layers, grad_output, copies)
+    for param, reference in zip(nets.hidden_parameters(), expected):
+        torch.testing.assert_close(param.grad, reference, rtol=1e-5, atol=1e-6)
+        assert torch.all(param.grad[2] == 0) and torch.any(param.grad[:2] != 0)
+
+
+@pytest.mark.parametrize("loss", ["mse", "huber", "hampel"])
+def test_irls_weight_times_residual_is_the_derivative_of_the_loss(loss):
+    # the training loops take the loss's gradient as w(r) r
+    gen = torch.Generator().manual_seed(5)
+    r = (torch.randn(2, 200, generator=gen, dtype=torch.float64) * 3).requires_grad_(True)
+    m = torch.rand(2, 200, generator=gen) > 0.2
+    cut = {"a": torch.tensor([[1.0], [0.5]], dtype=torch.float64), "b": torch.tensor([[2.5], [1.2]], dtype=torch.float64),
+           "huber": torch.tensor([[1.3], [0.7]], dtype=torch.float64)}
+    cut["beta"] = 0.915 / (cut["b"] / 4)
+    (expected,) = torch.autograd.grad(_robust_loss(r, m, loss, cut).sum(), r)
+    torch.testing.assert_close(_irls_weight(r.detach(), m, loss, cut) * r.detach(), expected)
 
 
 def test_ridge_network_has_one_hidden_layer():
@@ -276,9 +309,8 @@ def test_converged_copies_stop_where_they_were_at_the_check():
     assert stopped.tolist() == [every] * rows.n_copies
     opt = _adam(nets, FitSettings(), epochs)
     for _ in range(every):
-        loss = 0.5 * (weight.float() * rows.residual(nets, weight).square()).sum(dim=1) / rows.n_train
-        opt.zero_grad()
-        loss.sum().backward()
+        r, layers = rows.residual(nets, weight)
+        rows.backward(nets, layers, weight.float() * r / rows.n_train[:, None])
         opt.step()
     rows.residual(nets, weight)
     for mine, reference in zip(frozen.parameters(), nets.parameters()):
