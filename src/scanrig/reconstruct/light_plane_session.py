@@ -22,6 +22,7 @@ import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import read_image
+from scanrig.laser.colour_check import colour_advice, colour_shown
 from scanrig.reconstruct.light_plane import intersect_plane, plane_from, with_sampled_uncertainty
 from scanrig.reconstruct.light_plane_fit import LightPlaneFit, fit_light_plane
 
@@ -219,12 +220,9 @@ def _read_sized(path: Path, camera) -> np.ndarray:
 
 
 def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
-    """``"; the images show a red stripe: use --color red ..."`` when another colour finds it."""
-    if image.ndim != 3:
-        return ""
-    found = {other: len(stripe_pixels(camera, target, pose.world_from_target, image, dark, other)[0])
-             for other in ("red", "green", "blue") if other != color}
-    best = max(found, key=found.get)
-    if found[best] < MIN_POSE_POINTS:
-        return ""
-    return f"; the images show a {best} stripe: use --color {best} (or laser_color = {best!r} in session.toml)"
+    """``"; the images show a red stripe: use --color red ..."`` when another colour finds it
+    (:func:`~scanrig.laser.colour_check.colour_shown`, on the first pose), else ``""``."""
+    best = colour_shown(image, color, lambda other: len(stripe_pixels(camera, target, pose.world_from_target,
+                                                                      image, dark, other)[0]),
+                        least=MIN_POSE_POINTS)
+    return "" if best is None else f"; the images show a {best} stripe: {colour_advice(best)}"
