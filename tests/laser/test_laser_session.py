@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from scanrig.cli.main import main
-from scanrig.errors import FileFormatError
+from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import read_image, write_image
 from scanrig.laser.session_detect import DetectOptions, detect_session
 from scanrig.laser.traces import SCHEMA, read_traces, write_traces
@@ -105,10 +105,25 @@ def test_stripes_scanned_along_rows_only_when_asked(stripe_session, capsys):
 def test_resume_of_a_file_from_before_the_later_options_takes_their_defaults(session):
     first = detect_session(session)
     options = DetectOptions("spot", "red").as_dict()
-    del options["direction"], options["dark"]
+    del options["direction"], options["dark"], options["saturation_level"]
     write_traces(session / "traces.parquet", first, {"options": options,
                                                      "frames_done": [[c, f"f{k}"] for c in CAMERAS for k in range(N_FRAMES)]})
     assert detect_session(session, resume=True).equals(first)
+
+
+def test_resume_of_16_bit_frames_clipped_at_full_scale_is_refused(tmp_path):
+    """A file from before ``saturation_level`` clipped 16-bit frames at 65535; the frames left are
+    now clipped at the level found from them: one file would mix both."""
+    _clipped_stripe_session(tmp_path, np.uint16, 16)
+    write_image(tmp_path / "scan" / "cam0" / "f1.png", read_image(tmp_path / "scan" / "cam0" / "f0.png"))
+    options = DetectOptions("stripe").as_dict()
+    del options["saturation_level"]
+    first = detect_session(tmp_path)
+    write_traces(tmp_path / "traces.parquet", first.filter(pa.compute.equal(first["frame"], "f0")),
+                 {"options": options, "frames_done": [["cam0", "f0"]]})
+    with pytest.raises(FileFormatError, match=r"traces.parquet: was made when 16-bit frames were clipped at 65535, "
+                                              r"not at the level found from the frames; run without --resume"):
+        detect_session(tmp_path, resume=True)
 
 
 def test_unreadable_and_mismatched_frames_are_named(session):
@@ -176,3 +191,44 @@ def test_cli_bad_input_exits_2_naming_the_problem(session, capsys):
     assert "mode must be one of ('spot', 'stripe'), got 'blob'" in capsys.readouterr().err
     assert main(["detect", str(session), "--roi", "1,2,3"]) == 2
     assert "--roi must be four integers u0,v0,u1,v1, got '1,2,3'" in capsys.readouterr().err
+
+
+def test_saturation_level_option_is_checked_and_recorded(session, capsys):
+    assert main(["detect", str(session), "--saturation-level", "bright"]) == 2
+    assert "error: --saturation-level must be a number of DN or 'auto', got 'bright'" in capsys.readouterr().err
+    assert main(["detect", str(session), "--saturation-level", "-5"]) == 2
+    assert "error: saturation_level must be a positive number of DN or 'auto', got -5.0" in capsys.readouterr().err
+    assert main(["detect", str(session), "--saturation-level", "300"]) == 2
+    assert (f"error: {session / 'scan' / 'cam2' / 'f0.png'}: saturation_level must be in (0, 255] for uint8 images, "
+            "got 300.0") in capsys.readouterr().err
+    with pytest.raises(InputError, match="saturation_level must be a positive number of DN or 'auto', got 'max'"):
+        DetectOptions(saturation_level="max")
+    assert main(["detect", str(session), "--saturation-level", "auto"]) == 0
+    assert read_traces(session / "traces.parquet")[1]["options"]["saturation_level"] == "auto"
+
+
+def _clipped_stripe_session(root, dtype, scale):
+    """Grey frames of a stripe clipped at 255 DN (a flat top 5-6 px wide), values times ``scale``."""
+    rng = np.random.default_rng(503)
+    folder = root / "scan" / "cam0"
+    folder.mkdir(parents=True)
+    frame = stripe_image((60, 80), _stripe_centre, rng, amplitude=900.0, sigma=2.0, noise=2.0)
+    write_image(folder / "f0.png", frame.astype(dtype) * scale)
+    (root / "session.toml").write_text('laser_mode = "stripe"\n')
+    return frame.astype(dtype) * scale
+
+
+@pytest.mark.parametrize("dtype, scale, default", [(np.uint8, 1, None), (np.uint16, 16, "auto")],
+                         ids=["8-bit: the dtype's maximum", "16-bit: found from the data"])
+def test_the_default_clip_level_of_16_bit_frames_is_found_from_the_data(tmp_path, dtype, scale, default):
+    """12-bit data in a 16-bit file clip at 4080, which only the found level knows: there the
+    default differs from the dtype's maximum (the clipped top left out of the fit), and is it."""
+    from scanrig import detect_stripe
+
+    frame = _clipped_stripe_session(tmp_path, dtype, scale)
+    table = detect_session(tmp_path)
+    assert table.drop_columns(["camera", "frame"]).equals(detect_stripe(frame, saturation_level=default)
+                                                         .drop_columns(["camera", "frame"]))
+    assert table["saturated"].to_numpy().any()
+    if default == "auto":
+        assert not detect_stripe(frame)["saturated"].to_numpy().any()

@@ -299,6 +299,8 @@ def _wrong_colour_handled(call, reference, baseline) -> None:
     assert stripe_share(table, *reference) >= baseline - PHOTOMETRIC_MARGIN
 
 
+# The library's detect_stripe on these frames; ``scanrig detect`` handles both (the session tests below):
+# detect_stripe would need scanrig.laser.colour_check.grey_frames in prepare_image for the grey one.
 @pytest.mark.xfail(strict=True, reason="BGR frames with color='red' (the laser in the blue channel): with the "
                    "laser-off frame, 0 candidates and no error (a silent empty result); without it, 254 candidates "
                    "and rank 0 on the stripe in 0 of 1,031 rows (red minus the others is negative on the stripe)")
@@ -383,26 +385,64 @@ def test_detect_verb_on_grey_frames_with_a_red_laser(tmp_path, frames, reference
     assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) >= 0.96
 
 
-@pytest.mark.xfail(strict=True, reason="PNGs written from RGB arrays by cv2.imwrite (red and blue swapped), "
-                   "laser_color = 'red': exit 0, '0 candidates in 1 camera frames (0 with candidates)', no "
-                   "error naming the colour the frames show")
-def test_detect_verb_on_swapped_channels_says_which_colour(tmp_path, frames, reference, baseline, capsys):
-    rc = detect_cli(tmp_path, *(swapped(f) for f in frames), ".png")
-    if rc != 0:
-        err = capsys.readouterr().err
-        assert rc == 2 and str(tmp_path / "scan" / "cam0") in err and "blue" in err
-        return
-    assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) >= baseline[True] - GEOMETRIC_MARGIN
+def test_detect_verb_on_swapped_channels_says_which_colour(tmp_path, frames, capsys):
+    """PNGs written from RGB arrays by cv2.imwrite (red and blue swapped), ``laser_color = "red"``:
+    one line naming the camera, its frame and the colour the frames show, and exit 2 (nothing was
+    detected). Before: exit 0 and "0 candidates in 1 camera frames"."""
+    assert detect_cli(tmp_path, *(swapped(f) for f in frames), ".png") == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"warning: cam0: no red laser in {tmp_path / 'scan' / 'cam0' / '00000.png'}; the frames show a blue one: "
+        "use --color blue (or laser_color = 'blue' in session.toml)",
+        f"error: {tmp_path / 'scan'}: no red laser stripe in any of 1 camera frames"]
 
 
-@pytest.mark.xfail(strict=True, reason="16-bit PNGs of a 12-bit camera (values x 16, red clips at 4,080): "
-                   "scanrig detect takes the dtype's maximum as the clip level and has no option to change it; "
-                   "the clipped core is fitted as a peak: share 0.954 (baseline 0.994), rank-0 centres up to "
-                   "3.9 px (99th percentile) from the 8-bit frame's")
+def test_detect_verb_on_swapped_channels_without_the_laser_off_frame(tmp_path, frames, capsys):
+    """Without ``dark.png`` red finds texture (254 candidates, none on the stripe): exit 0, and
+    the line says how much less laser light red finds than blue (18 times, measured)."""
+    assert detect_cli(tmp_path, *(swapped(f) for f in frames), ".png") == 2
+    (tmp_path / "scan" / "cam0" / "dark.png").unlink()
+    capsys.readouterr()
+    assert main(["detect", str(tmp_path)]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        f"warning: cam0: red finds 18 times less laser light than blue in {tmp_path / 'scan' / 'cam0' / '00000.png'}"
+        "; the frames show a blue one: use --color blue (or laser_color = 'blue' in session.toml)"]
+
+
+def test_detect_verb_on_the_right_colour_names_no_other(tmp_path, frames, capsys):
+    """The real frames with ``laser_color = "red"``: no line about colours (blue and green find
+    1/181 and less of red's laser light with the laser-off frame, 1/18 without)."""
+    assert detect_cli(tmp_path, *frames, ".png") == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_detect_verb_on_grey_frames_in_three_channels_with_a_red_laser(tmp_path, frames, reference):
+    """Grey frames stored as three equal channels (GRAY2RGB), ``laser_color = "red"``: detected as
+    the grey frames they are (0.9651, as the 2-D grey PNGs). Before: red minus the others is 0
+    and rank 0 was on the stripe in 0.097 of the rows."""
+    assert detect_cli(tmp_path, *(cv2.cvtColor(grey(f), cv2.COLOR_GRAY2RGB) for f in frames), ".png") == 0
+    assert read_image(tmp_path / "scan" / "cam0" / "00000.png").shape == frames[0].shape
+    assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) >= 0.96
+
+
 def test_detect_verb_on_12_bit_data_in_16_bit_files(tmp_path, frames, reference, baseline):
+    """16-bit PNGs of a 12-bit camera (values x 16, red clips at 4,080): the clip level of 16-bit
+    frames is found from the data by default, so the share is the 8-bit frame's (before, with
+    65535: 0.954, and rank-0 centres 3.9 px away at the 99th percentile)."""
     assert detect_cli(tmp_path, *(f.astype(np.uint16) * 16 for f in frames), ".png") == 0
     share = stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference)
     assert share >= baseline[True] - GEOMETRIC_MARGIN
+
+
+def test_detect_verb_saturation_level_option(tmp_path, frames, reference, baseline, capsys):
+    """``--saturation-level 4080`` on the same files: the same detections as the found level (red
+    clips at 4,080, green and blue never reach it); 65535 gives back the clipped core fitted as a
+    peak (share 0.954 measured)."""
+    assert detect_cli(tmp_path, *(f.astype(np.uint16) * 16 for f in frames), ".png") == 0
+    found = pq.read_table(tmp_path / "traces.parquet")
+    assert main(["detect", str(tmp_path), "--saturation-level", "4080"]) == 0
+    assert pq.read_table(tmp_path / "traces.parquet").equals(found)
+    assert main(["detect", str(tmp_path), "--saturation-level", "65535"]) == 0
+    assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) < baseline[True] - 0.03
 
 
 def test_detect_verb_on_frames_in_a_format_it_does_not_read(tmp_path, frames, capsys):

@@ -27,11 +27,17 @@ def command(
     dark: Annotated[str, typer.Option(
         help="Laser-off frame of a camera: its scan/<camera>/dark.<ext> (file), or where it has none the "
              "median of its scan frames (median: a laser swept over a fixed scene).")] = "file",
+    saturation_level: Annotated[str | None, typer.Option(
+        metavar="DN|auto",
+        help="Level at which pixels clip, DN, or auto: each channel's found from the frames (default: auto "
+             "for 16-bit frames, whose 10- to 14-bit data clip below 65535; 255 for 8-bit ones).")] = None,
 ):
     """Detect laser spots or stripes in every scan frame, with sub-pixel centres and their sigma.
 
     Writes SESSION/traces.parquet (one row per candidate, every candidate, ranked) atomically and
-    every 30 s while running; with --resume an interrupted run continues where it stopped.
+    every 30 s while running; with --resume an interrupted run continues where it stopped. A camera
+    whose frames show a laser of another colour is named, one line each; no candidate in any frame
+    is an error (exit 2).
 
     Example: scanrig detect demo_session --mode spot --color red --workers 2 --overlay 00000
     """
@@ -39,7 +45,7 @@ def command(
     from scanrig.errors import InputError
     from scanrig.io.session import Session
     from scanrig.laser.overlay import write_overlays
-    from scanrig.laser.session_detect import detect_session, options_from_session
+    from scanrig.laser.session_detect import colour_mismatches, detect_session, options_from_session
 
     roi_box = None
     if roi is not None:
@@ -50,7 +56,8 @@ def command(
         if len(roi_box) != 4:
             raise InputError(f"--roi must be four integers u0,v0,u1,v1, got {roi!r}")
     sess = Session(session)
-    options = options_from_session(sess, mode, color, roi_box, k_detect, direction, dark)
+    options = options_from_session(sess, mode, color, roi_box, k_detect, direction, dark,
+                                   _saturation_level(saturation_level))
     stage = f"detecting {options.mode}s"
     with stage_progress() as progress:
         table = detect_session(sess.root, options, workers=workers, resume=resume,
@@ -59,6 +66,23 @@ def command(
     n_with = len(set(zip(table.column("camera").to_pylist(), table.column("frame").to_pylist())))
     typer.echo(f"{len(table)} candidates in {n_frames} camera frames ({n_with} with candidates) "
                f"-> {sess.traces_path}")
+    for line in colour_mismatches(sess.root, options, table):
+        typer.echo(f"warning: {line}", err=True)
+    if not len(table):
+        raise InputError(f"{sess.root / 'scan'}: no {options.color} laser {options.mode} in any of {n_frames} "
+                         "camera frames")
     if overlay is not None:
         for path in write_overlays(sess, overlay, table):
             typer.echo(f"overlay: {path}")
+
+
+def _saturation_level(text: str | None) -> float | str | None:
+    """``--saturation-level``: None, ``"auto"`` or a number of DN (checked by ``DetectOptions``)."""
+    from scanrig.errors import InputError
+
+    if text is None or text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(f"--saturation-level must be a number of DN or 'auto', got {text!r}") from None

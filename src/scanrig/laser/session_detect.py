@@ -5,10 +5,17 @@ Frames are independent, so they are split into chunks and handed to a
 and result tables cross process boundaries). ``traces.parquet`` is rewritten atomically every
 ``checkpoint_s`` seconds and at the end, with the list of processed ``(camera, frame)`` pairs in
 its metadata; ``resume=True`` skips those, including frames that had no candidate.
+
+Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
+equal is detected as grey, 16-bit frames are clipped where their data clip (found from them), and
+:func:`colour_mismatches` names the cameras whose frames show a laser of another colour.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,10 +23,12 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
+from scanrig.laser.colour_check import colour_advice, colour_shown, grey_frames
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.image import LASER_COLORS
@@ -29,8 +38,12 @@ MODES = ("spot", "stripe")
 #: Where a camera's laser-off frame comes from: its ``scan/<camera>/dark.<ext>`` only ("file"), or,
 #: where it has none, the median of its scan frames ("median", :mod:`scanrig.laser.median_dark`).
 DARK_SOURCES = ("file", "median")
-#: Options added after ``traces.parquet`` files were first written: such files used their defaults.
-_LATER_OPTIONS = ("direction", "dark")
+#: Options added after ``traces.parquet`` files were first written: such files used their defaults
+#: (but 16-bit frames were clipped at 65535 before ``saturation_level``, not found from the data).
+_LATER_OPTIONS = ("direction", "dark", "saturation_level")
+#: A camera's frame shows a laser of another colour (:func:`colour_mismatches`) only where that
+#: colour has a rank-0 stripe candidate on at least this many scan lines (a spot: one).
+_LEAST_STRIPE_LINES = 20
 #: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
 _CHUNK_FRAMES = 8
 
@@ -54,6 +67,10 @@ class DetectOptions:
     dark : {"file", "median"}
         "median": a camera without ``scan/<camera>/dark.<ext>`` takes the per-pixel median of its
         scan frames as its laser-off frame (a laser swept over a fixed scene, not a moving object).
+    saturation_level : float, "auto" or None
+        DN at which pixels clip, or "auto": each channel's level found from the frames
+        (:func:`~scanrig.laser.clip_level.channel_clip_levels`). None: "auto" for 16-bit frames (a
+        10-, 12- or 14-bit camera's data clip below 65535), the dtype's maximum for 8-bit ones.
     """
 
     mode: str = "spot"
@@ -62,6 +79,7 @@ class DetectOptions:
     k_detect: float = 6.0
     direction: str = "auto"
     dark: str = "file"
+    saturation_level: float | str | None = None
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -76,18 +94,31 @@ class DetectOptions:
             raise InputError(f"direction {self.direction!r} applies to stripes; spot mode takes no direction")
         if self.dark not in DARK_SOURCES:
             raise InputError(f"dark must be one of {DARK_SOURCES}, got {self.dark!r}")
+        level = self.saturation_level
+        if not (level is None or level == "auto" or (isinstance(level, (int, float)) and not isinstance(level, bool)
+                                                     and math.isfinite(level) and level > 0)):
+            raise InputError(f"saturation_level must be a positive number of DN or 'auto', got {level!r}")
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),
-                "k_detect": self.k_detect, "direction": self.direction, "dark": self.dark}
+                "k_detect": self.k_detect, "direction": self.direction, "dark": self.dark,
+                "saturation_level": self.saturation_level}
+
+    def clip_level(self, dtype: np.dtype) -> float | str | None:
+        """The ``saturation_level`` passed to the detector for frames of ``dtype``."""
+        if self.saturation_level is None and np.dtype(dtype) == np.uint16:
+            return "auto"
+        return self.saturation_level
 
 
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
-                         roi=None, k_detect: float = 6.0, direction: str = "auto", dark: str = "file") -> DetectOptions:
+                         roi=None, k_detect: float = 6.0, direction: str = "auto", dark: str = "file",
+                         saturation_level: float | str | None = None) -> DetectOptions:
     """Options with ``mode`` and ``color`` defaulting to ``laser_mode`` / ``laser_color`` of session.toml."""
     settings = session.settings()
     return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
-                         None if roi is None else tuple(int(x) for x in roi), k_detect, direction, dark)
+                         None if roi is None else tuple(int(x) for x in roi), k_detect, direction, dark,
+                         saturation_level)
 
 
 @dataclass
@@ -147,11 +178,12 @@ def detect_session(
     if workers < 1:
         raise InputError(f"workers must be at least 1, got {workers}")
     cameras = session.camera_names("scan")
-    tables, done = [empty_table()], set()
+    tables, done, clipped_at_full_scale = [empty_table()], set(), False
     if resume and session.traces_path.exists():
         table, meta = read_traces(session.traces_path)
         made_with = meta.get("options")
         if isinstance(made_with, dict):
+            clipped_at_full_scale = "saturation_level" not in made_with
             defaults = DetectOptions().as_dict()
             made_with = made_with | {k: defaults[k] for k in _LATER_OPTIONS if k not in made_with}
         if made_with != options.as_dict():
@@ -163,6 +195,9 @@ def detect_session(
         raise InputError(f"{object_poses_path(session.root)}: the object moves between frames, so the median of "
                          "its frames is not a laser-off frame; take one (scan/<camera>/dark.<ext>) instead")
     jobs = _jobs(session, cameras, options, done)
+    if clipped_at_full_scale and options.saturation_level is None and any(j.dtype == "uint16" for j in jobs):
+        raise FileFormatError(session.traces_path, "was made when 16-bit frames were clipped at 65535, not at the "
+                              "level found from the frames; run without --resume to start again")
     total = sum(len(j.frames) for j in jobs)
     finished = sorted(done)
     last_write = time.monotonic()
@@ -215,13 +250,40 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
     return jobs
 
 
-def _run_job(job: _Job):
-    """Detect in a chunk of frames (runs in a worker). Returns a table, or (path, reason) on bad input."""
+def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, camera: str = "",
+                 frame: str = "") -> pa.Table:
+    """The candidates of one frame with the session's options.
+
+    A frame whose three channels are equal (and its laser-off frame's) is detected as the grey
+    frame it is (:func:`~scanrig.laser.colour_check.grey_frames`): a colour laser's signal, its
+    channel minus the others, would be 0 there.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) uint8 or uint16 array
+        The frame, DN.
+    dark : array like ``image`` or None
+        Its laser-off frame.
+    options : DetectOptions
+    camera, frame : str
+        Written into every row.
+
+    Returns
+    -------
+    pyarrow.Table
+        ``traces.parquet`` rows.
+    """
     from scanrig.laser.spots import detect_spots
     from scanrig.laser.stripes import detect_stripe
 
-    options = job.options
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
+    image, dark = grey_frames(image, dark)
+    return detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
+                  saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame, **scan)
+
+
+def _run_job(job: _Job):
+    """Detect in a chunk of frames (runs in a worker). Returns a table, or (path, reason) on bad input."""
     path = job.dark_path
     try:
         dark = job.dark_image if job.dark_path is None else read_image(job.dark_path)
@@ -231,8 +293,7 @@ def _run_job(job: _Job):
             if img.shape != job.shape or str(img.dtype) != job.dtype:
                 return (path, f"frame is {describe_image(img.shape, img.dtype)} but {Path(job.reference).name} of "
                               f"camera {job.camera!r} is {describe_image(job.shape, job.dtype)}")
-            out.append(detect(img, color=options.color, dark=dark, roi=options.roi,
-                              k_detect=options.k_detect, camera=job.camera, frame=stem, **scan))
+            out.append(detect_frame(img, dark, job.options, job.camera, stem))
     except FileFormatError as exc:
         return (str(exc.path), exc.reason)
     except InputError as exc:
@@ -258,3 +319,66 @@ def _write(session: Session, cameras: list[str], tables: list[pa.Table], finishe
             "frames_done": [list(x) for x in sorted(set(map(tuple, finished)))]}
     write_traces(session.traces_path, table, meta)
     return table
+
+
+def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table) -> list[str]:
+    """One line per camera whose frames show a laser of another colour than ``options.color``.
+
+    Each camera's frame where ``options.color`` found the most laser light (its middle frame where
+    it found none) is detected again, with its laser-off file if any, in red, green and blue; a
+    colour that finds more than :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light
+    (rank-0 peaks summed, DN; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES``
+    scan lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
+    checked. Costs three or four detections of one frame per colour camera.
+
+    Parameters
+    ----------
+    root : path
+        Session folder.
+    options : DetectOptions
+        The options ``table`` was detected with.
+    table : pyarrow.Table
+        The session's detections (:func:`detect_session`).
+
+    Returns
+    -------
+    list of str
+        ``"cam0: no red laser in <frame path>; the frames show a blue one: use --color blue (or
+        laser_color = 'blue' in session.toml)"``, or ``"cam0: red finds 12 times less laser light
+        than blue in <frame path>; ..."``.
+    """
+    session = Session(root)
+    light = _laser_light(table.filter(pc.equal(table["rank"], 0)))
+    lines = []
+    for camera in session.camera_names("scan"):
+        paths = session.image_paths("scan", camera)
+        found = {frame: total for (cam, frame), total in light.items() if cam == camera}
+        stem = max(found, key=found.get) if found else list(paths)[len(paths) // 2]
+        image = read_image(paths[stem])
+        dark_path = session.dark_path(camera)
+        light_with = functools.cache(functools.partial(_frame_light, image,
+                                                       None if dark_path is None else read_image(dark_path), options))
+        best = colour_shown(image, options.color, light_with, least=0.0)
+        if best is None:
+            continue
+        what = (f"no {options.color} laser in {paths[stem]}" if light_with(options.color) == 0 else
+                f"{options.color} finds {light_with(best) / light_with(options.color):.0f} times less laser light "
+                f"than {best} in {paths[stem]}")
+        lines.append(f"{camera}: {what}; the frames show a {best} one: {colour_advice(best)}")
+    return lines
+
+
+def _frame_light(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, colour: str) -> float:
+    """The laser light ``colour`` finds in a frame: its rank-0 peaks summed, DN; 0 when it has a
+    rank-0 candidate on fewer than ``_LEAST_STRIPE_LINES`` scan lines (stripes) or none (spots)."""
+    table = detect_frame(image, dark, dataclasses.replace(options, color=colour))
+    ranked = table.filter(pc.equal(table["rank"], 0))
+    if len(ranked) < (_LEAST_STRIPE_LINES if options.mode == "stripe" else 1):
+        return 0.0
+    return float(pc.sum(ranked["peak"]).as_py())
+
+
+def _laser_light(table: pa.Table) -> dict[tuple[str, str], float]:
+    """``(camera, frame) -> `` the fitted peaks of ``table``'s rows summed, DN."""
+    sums = table.group_by(["camera", "frame"]).aggregate([("peak", "sum")])
+    return dict(zip(zip(sums["camera"].to_pylist(), sums["frame"].to_pylist()), sums["peak_sum"].to_pylist()))
