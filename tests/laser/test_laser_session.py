@@ -1,5 +1,7 @@
 """Whole-session detection, traces.parquet, resume, overlays and the ``scanrig detect`` verb."""
 
+import re
+
 import cv2
 import numpy as np
 import pyarrow as pa
@@ -9,7 +11,7 @@ import pytest
 from scanrig.cli.main import main
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import read_image, write_image
-from scanrig.laser.session_detect import DetectOptions, detect_session
+from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_session
 from scanrig.laser.traces import SCHEMA, read_traces, write_traces
 
 from .synth import spot_image, stripe_image
@@ -232,3 +234,27 @@ def test_the_default_clip_level_of_16_bit_frames_is_found_from_the_data(tmp_path
     assert table["saturated"].to_numpy().any()
     if default == "auto":
         assert not detect_stripe(frame)["saturated"].to_numpy().any()
+
+
+@pytest.mark.parametrize("frames, laser", [(lambda f: f, "red"), (lambda f: np.ascontiguousarray(f[:, :, ::-1]), "blue")],
+                         ids=["RGB", "BGR"])
+def test_spots_of_another_colour_are_named(tmp_path, frames, laser):
+    """A rendered grid of over-exposed red spots with its laser-off frame, saved as RGB or with red
+    and blue swapped, detected as red: the swapped frames' camera is named with its blue laser
+    (red finds 53 times less light, measured), the right colour's is not."""
+    from .colour_synth import spot_frames
+
+    on, off = spot_frames(np.random.default_rng(7))[:2]
+    folder = tmp_path / "scan" / "cam0"
+    folder.mkdir(parents=True)
+    write_image(folder / "f0.png", frames(on))
+    write_image(folder / "dark.png", frames(off))
+    options = DetectOptions("spot", "red")
+    lines = colour_mismatches(tmp_path, options, detect_session(tmp_path, options))
+    if laser == "red":
+        assert lines == []
+    else:
+        assert len(lines) == 1
+        assert re.fullmatch(rf"cam0: red finds \d+ times less laser light than blue in {re.escape(str(folder))}/f0.png; "
+                            r"the frames show a blue one: use --color blue \(or laser_color = 'blue' in session.toml\)",
+                            lines[0])

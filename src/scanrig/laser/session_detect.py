@@ -42,7 +42,7 @@ DARK_SOURCES = ("file", "median")
 #: (but 16-bit frames were clipped at 65535 before ``saturation_level``, not found from the data).
 _LATER_OPTIONS = ("direction", "dark", "saturation_level")
 #: A camera's frame shows a laser of another colour (:func:`colour_mismatches`) only where that
-#: colour has a rank-0 stripe candidate on at least this many scan lines (a spot: one).
+#: colour has a rank-0 stripe candidate on at least this many scan lines (spots: one candidate).
 _LEAST_STRIPE_LINES = 20
 #: Frames per task sent to a worker: large enough to hide the pickling, small enough to balance.
 _CHUNK_FRAMES = 8
@@ -327,8 +327,8 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
     Each camera's frame where ``options.color`` found the most laser light (its middle frame where
     it found none) is detected again, with its laser-off file if any, in red, green and blue; a
     colour that finds more than :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light
-    (rank-0 peaks summed, DN; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES``
-    scan lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
+    (:func:`_laser_light`; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan
+    lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
     checked. Costs three or four detections of one frame per colour camera.
 
     Parameters
@@ -348,7 +348,7 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         than blue in <frame path>; ..."``.
     """
     session = Session(root)
-    light = _laser_light(table.filter(pc.equal(table["rank"], 0)))
+    light = _laser_light(table, options.mode)
     lines = []
     for camera in session.camera_names("scan"):
         paths = session.image_paths("scan", camera)
@@ -369,16 +369,22 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
 
 
 def _frame_light(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, colour: str) -> float:
-    """The laser light ``colour`` finds in a frame: its rank-0 peaks summed, DN; 0 when it has a
-    rank-0 candidate on fewer than ``_LEAST_STRIPE_LINES`` scan lines (stripes) or none (spots)."""
+    """The laser light ``colour`` finds in a frame (:func:`_laser_light`), DN; 0 when it has a
+    rank-0 candidate on fewer than ``_LEAST_STRIPE_LINES`` scan lines (stripes) or no candidate."""
     table = detect_frame(image, dark, dataclasses.replace(options, color=colour))
-    ranked = table.filter(pc.equal(table["rank"], 0))
-    if len(ranked) < (_LEAST_STRIPE_LINES if options.mode == "stripe" else 1):
-        return 0.0
-    return float(pc.sum(ranked["peak"]).as_py())
+    lines = np.count_nonzero(table["rank"].to_numpy() == 0) if options.mode == "stripe" else len(table)
+    return sum(_laser_light(table, options.mode).values()) if lines >= _LEAST_STRIPE_LINES or (
+        options.mode == "spot" and lines) else 0.0
 
 
-def _laser_light(table: pa.Table) -> dict[tuple[str, str], float]:
-    """``(camera, frame) -> `` the fitted peaks of ``table``'s rows summed, DN."""
+def _laser_light(table: pa.Table, mode: str) -> dict[tuple[str, str], float]:
+    """``(camera, frame) -> `` the fitted peaks of its candidates summed, DN: each scan line's
+    rank-0 one (stripes: one stripe crosses a line once) or all (spots: a frame may hold several).
+
+    The right colour's light is 18 times the best other colour's on the Ciclop bust frame's stripe
+    (181 with the laser-off frame), 22 times on a rendered grid of red spots with its laser-off
+    frame (2.3 without), where the brightest spot's alone is only 2.8 times."""
+    if mode == "stripe":
+        table = table.filter(pc.equal(table["rank"], 0))
     sums = table.group_by(["camera", "frame"]).aggregate([("peak", "sum")])
     return dict(zip(zip(sums["camera"].to_pylist(), sums["frame"].to_pylist()), sums["peak_sum"].to_pylist()))
