@@ -57,25 +57,30 @@ def channel_clip_levels(image: np.ndarray, dark: np.ndarray | None = None) -> np
 
     full_scale = int(np.iinfo(image.dtype).max)
     frames = [np.ascontiguousarray(f if f.ndim == 3 else f[:, :, None]) for f in (image, dark) if f is not None]
-    # OpenCV's histogram of the interleaved frame: several times faster than np.bincount of a plane
-    histograms = [sum(cv2.calcHist([f], [c], None, [full_scale + 1], [0, full_scale + 1]).ravel()
-                      for f in frames).astype(np.int64) for c in range(frames[0].shape[2])]
+    # per channel, (array, channel index) of each frame for OpenCV's histogram, which is fastest on the
+    # interleaved 8-bit frame but on a 16-bit channel extracted first (about 4 times as fast, extraction
+    # included: its 65,536 bins are counted one plane at a time)
+    sources = [[(f, c) if image.dtype == np.uint8 else (cv2.extractChannel(f, c)[:, :, None], 0) for f in frames]
+               for c in range(frames[0].shape[2])]
+    histograms = [sum(cv2.calcHist([f], [k], None, [full_scale + 1], [0, full_scale + 1]).ravel()
+                      for f, k in channel).astype(np.int64) for channel in sources]
     top = _sensor_top(max(int(np.flatnonzero(counts)[-1]) for counts in histograms), full_scale)
     levels = np.full(len(histograms), float(top))
     for c, counts in enumerate(histograms):
         above = counts.sum() - np.cumsum(counts)
-        below = np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(_PILE_BELOW, counts.dtype), counts[:-1]],
-                                                         _PILE_BELOW).max(axis=1)
+        # the largest count of the _PILE_BELOW values under each value (0 below 0)
+        padded = np.r_[np.zeros(_PILE_BELOW, counts.dtype), counts]
+        below = np.maximum.reduce([padded[k : k + counts.size] for k in range(_PILE_BELOW)])
         pile = ((counts >= max(_PILE_MIN_PIXELS, _PILE_MIN_SHARE * counts.sum()))
                 & (counts >= _PILE_RATIO * below) & (above <= _ABOVE_SHARE * counts))
         pile[top:] = False  # the default level, and nothing is above it
         median = int(np.searchsorted(np.cumsum(counts), 0.5 * counts.sum()))
         for level in np.flatnonzero(pile)[::-1]:
             rim = []
-            for f in frames:
-                plateau = (f[:, :, c] == level).view(np.uint8)
+            for plane in (f[:, :, k] for f, k in sources[c]):
+                plateau = (plane == level).view(np.uint8)
                 ring = cv2.dilate(plateau, np.ones((3, 3), np.uint8)) > plateau
-                rim.append(f[:, :, c][ring])
+                rim.append(plane[ring])
             rim = np.concatenate(rim)
             # a plateau without a rim fills the channel: a flat channel, nothing clipped
             if rim.size and median + _RIM_FRACTION * (level - median) <= np.median(rim) < level:
