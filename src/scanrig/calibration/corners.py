@@ -12,7 +12,7 @@ carrying the rest of the box's variance as a Gaussian (:data:`SUB_VAR`). A Gauss
 the whole box (one sample per pixel) mis-locates sharp edges that run along the pixel grid by up
 to 0.2 px, depending on their sub-pixel phase; sub-sampling removes that. The seven parameters
 are fitted to the pixels of a window by Gauss–Newton with Levenberg damping, all corners of an
-image at once (batched numpy). Unlike ``cornerSubPix`` (a gradient-orthogonality criterion that
+image at once (batched numpy); a corner leaves the batch once it has converged. Unlike ``cornerSubPix`` (a gradient-orthogonality criterion that
 blur and noise bias) and the Radon-transform detector (a fixed kernel), the fit uses every pixel
 with its actual blur, which is what the acceptance bench measures
 (benchmarks/bench_calibration.py).
@@ -22,17 +22,22 @@ white squares carry markers: only the pixels where the saddle model holds are us
 :func:`refine_charuco_corners`).
 
 Written here because OpenCV has no model-fitting corner refiner; only the pixel gather and the
-7x7 solves are per corner, both vectorised.
+7x7 solves are per corner, both vectorised. Speed: the per-sub-sample work (9 x 625 samples a
+corner for a 25-pixel window) is float32, in one affine matrix product for the distances to the
+edges and with erf and exp(-x²) evaluated only within a few blur widths of each edge; one model
+evaluation per iteration serves both the trial's cost and the next Jacobian. On the 16 Ciclop
+webcam views (66 corners, 960 x 1280) that takes the median CPU time per view from 1.5 s to
+0.2 s (``python benchmarks/bench_calibration.py --sections 1`` prints it beside cornerSubPix).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import erf
 
-#: Gauss–Newton iterations (the fit converges in 5-8 from an OpenCV start).
+#: Most Gauss–Newton iterations. From an OpenCV start the fit converges in about 5 on rendered
+#: boards, 8-15 on real webcam views (sharp JPEG edges: large residuals, linear convergence).
 ITERATIONS = 15
-#: The fit stops when no corner moves by more than this in an accepted or rejected step, px.
+#: A corner leaves the fit once a step, accepted or rejected, would move it by less than this, px.
 STEP_TOL_PX = 1e-4
 #: A refined corner further than this from its start (pixels) is a failed fit; the start is kept.
 MAX_SHIFT_PX = 2.0
@@ -92,8 +97,14 @@ def window_offsets(half: int) -> tuple[np.ndarray, np.ndarray]:
     return ox.ravel(), oy.ravel()
 
 
-def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half, pixel_weight=None):
+def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half,
+                pixel_weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fit the blurred-saddle model at many corners (see the module docstring).
+
+    Levenberg–Marquardt on the seven parameters, started from the closed-form mean level and
+    contrast of the starting geometry. A corner leaves the batch once its step is below
+    :data:`STEP_TOL_PX`; one model evaluation per iteration gives both the trial's cost and, if
+    it is accepted, the Jacobian of the next step.
 
     Parameters
     ----------
@@ -115,102 +126,190 @@ def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half, pixe
     """
     n = len(uv0)
     halves = np.broadcast_to(np.asarray(half, dtype=np.int64), (n,))
-    big = int(halves.max()) if n else 1
-    ox, oy = window_offsets(big)
+    ox, oy = window_offsets(int(halves.max()) if n else 1)
     centre = np.round(uv0).astype(np.int64)
+    values, taper, inside = _gather_windows(img, centre, halves, ox, oy, pixel_weight)
+    # Sub-sample offsets (x, y) from the window centre and ones, (3, K, P), the same for every corner.
+    sub_xy1 = np.stack([ox[None, :] + SUB_X[:, None], oy[None, :] + SUB_Y[:, None],
+                        np.ones((len(SUB_X), len(ox)))]).astype(np.float32)
+    # Parameters (N, 7): corner offset from its window centre (px), edge normals (rad), blur (px),
+    # mean level and contrast (image units), the last two fitted to the starting geometry.
+    params = np.column_stack([uv0 - centre, theta0, np.ones(n), np.zeros((n, 2))])
+    basis, d_basis = _saddle_basis(params, sub_xy1)
+    params[:, 5:] = _linear_fit(basis, values, taper)
+    fit = _fit_terms(params, basis, d_basis, values, taper)
+    lam = np.full(n, 1e-3)
+    active = np.arange(n)
+    for _ in range(ITERATIONS):
+        if active.size == 0:
+            break
+        step = _damped_step(fit, taper[active], lam[active], active)
+        trial = params[active] + step
+        trial[:, 4] = np.abs(trial[:, 4])
+        new = _fit_terms(trial, *_saddle_basis(trial, sub_xy1), values[active], taper[active])
+        better = new["cost"] < fit["cost"][active]
+        _accept(fit, new, active[better], better)
+        params[active[better]] = trial[better]
+        lam[active] *= np.where(better, 0.3, 10.0)
+        done = (np.abs(step[:, :2]).max(axis=1) < STEP_TOL_PX) | ~np.isfinite(fit["cost"][active])
+        active = active[~done]
+    uv = params[:, :2] + centre
+    ok = inside & np.all(np.isfinite(uv), axis=1) & (np.linalg.norm(uv - uv0, axis=1) < MAX_SHIFT_PX) \
+        & (params[:, 4] < halves) & (np.count_nonzero(taper, axis=1) >= 12)
+    return np.where(ok[:, None], uv, uv0), ok
+
+
+def _gather_windows(img, centre, halves, ox, oy, pixel_weight):
+    """Pixel values (N, P), fit weights (N, P) and whether each window lies inside the image (N,).
+
+    The weight is a Gaussian taper (pixels nearer the next corner count less), zero outside a
+    corner's own window, times ``pixel_weight`` when given.
+    """
     px = centre[:, 0:1] + ox[None, :]                 # (N, P) pixel columns
     py = centre[:, 1:2] + oy[None, :]
     h, w = img.shape
     in_win = (np.abs(ox)[None, :] <= halves[:, None]) & (np.abs(oy)[None, :] <= halves[:, None])
     in_img = (px >= 0) & (py >= 0) & (px < w) & (py < h)
     inside = np.all(in_img | ~in_win, axis=1)
-    values = img[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)]
-    # Gaussian taper: pixels far from the corner (nearer the next corner) count less.
+    values = img[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)].astype(np.float64)
     hh = halves[:, None].astype(np.float64)
     taper = np.exp(-0.5 * (ox[None, :] ** 2 + oy[None, :] ** 2) / (0.6 * hh) ** 2) * in_win
     if pixel_weight is not None:
         taper = taper * pixel_weight
-    used = taper > 0
-    wsum = np.maximum(taper.sum(axis=1), 1e-12)
-    # Sub-sample positions (N, P, K).
-    sx = px[:, :, None] + SUB_X[None, None, :]
-    sy = py[:, :, None] + SUB_Y[None, None, :]
+    return values, taper, inside
 
-    c = uv0.astype(np.float64).copy()
-    th = theta0.astype(np.float64).copy()
-    s = np.full(n, 1.0)
-    # Linear start for m and A given the geometry (weighted).
-    e1, e2 = _edges(sx, sy, c, th, s)[:2]
-    basis = (e1 * e2).mean(axis=2)
+
+def _damped_step(fit, taper, lam, active):
+    """Levenberg–Marquardt step (n, 7) of the active corners from their Jacobian and residuals."""
+    J = fit["jac"][active]                            # (n, P, 7)
+    Jw_T = np.swapaxes(J * taper[:, :, None], 1, 2)   # (n, 7, P)
+    H = Jw_T @ J
+    g = Jw_T @ fit["res"][active][:, :, None]
+    diag = np.einsum("nii->ni", H)
+    damped = H + (lam[:, None] * diag)[:, :, None] * np.eye(7) + 1e-12 * np.eye(7)
+    return np.linalg.solve(damped, -g)[:, :, 0]
+
+
+def _accept(fit, new, rows, better):
+    """Copy the improved trial fits (``better`` of the active rows) into ``fit`` at ``rows``."""
+    for key, value in new.items():
+        fit[key][rows] = value[better]
+
+
+def _fit_terms(params, basis, d_basis, values, taper):
+    """Cost, residuals and Jacobian at parameters ``params`` (n, 7) of the model
+    ``m + A · basis`` (u, v from the window centre, θ1, θ2, s, m, A), given the saddle basis
+    (n, P) and its derivatives (n, P, 5) there (:func:`_saddle_basis`).
+
+    Returns
+    -------
+    dict
+        ``cost`` (n,) weighted squared residuals (inf where not finite), ``res`` (n, P) residuals
+        (model - image), ``jac`` (n, P, 7) Jacobian with respect to (u, v, θ1, θ2, s, m, A).
+    """
+    mean, contrast = params[:, 5], params[:, 6]
+    res = mean[:, None] + contrast[:, None] * basis - values
+    jac = np.empty(basis.shape + (7,))
+    jac[:, :, :5] = contrast[:, None, None] * d_basis
+    jac[:, :, 5] = 1.0
+    jac[:, :, 6] = basis
+    cost = np.sum(taper * res ** 2, axis=1)
+    return {"cost": np.where(np.isfinite(cost), cost, np.inf), "res": res, "jac": jac}
+
+
+def _linear_fit(basis, values, taper):
+    """Weighted least-squares mean level and contrast (n, 2) of ``values ≈ m + A · basis``."""
+    wsum = np.maximum(taper.sum(axis=1), 1e-12)
     bm = np.sum(taper * basis, axis=1) / wsum
     vm = np.sum(taper * values, axis=1) / wsum
-    A = np.sum(taper * (basis - bm[:, None]) * (values - vm[:, None]), axis=1) \
-        / np.maximum(np.sum(taper * (basis - bm[:, None]) ** 2, axis=1), 1e-12)
-    m = vm - A * bm
-    p = np.column_stack([c, th, s, m, A])             # (N, 7)
-    lam = np.full(n, 1e-3)
-    cost = _cost(p, sx, sy, values, taper)
-    for _ in range(ITERATIONS):
-        r, J = _residual_jacobian(p, sx, sy, values)
-        Jw = J * taper[:, :, None]
-        H = np.einsum("npi,npj->nij", Jw, J)
-        g = np.einsum("npi,np->ni", Jw, r)
-        diag = np.einsum("nii->ni", H)
-        step = np.linalg.solve(H + lam[:, None, None] * np.eye(7)[None] * diag[:, None, :] + 1e-12 * np.eye(7),
-                               -g[:, :, None])[:, :, 0]
-        p_new = p + step
-        p_new[:, 4] = np.abs(p_new[:, 4])
-        cost_new = _cost(p_new, sx, sy, values, taper)
-        better = cost_new < cost
-        p[better], cost[better] = p_new[better], cost_new[better]
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        if np.all((np.abs(step[:, :2]).max(axis=1) < STEP_TOL_PX) | ~np.isfinite(cost)):
-            break
-    uv = p[:, :2]
-    ok = inside & np.all(np.isfinite(uv), axis=1) & (np.linalg.norm(uv - uv0, axis=1) < MAX_SHIFT_PX) \
-        & (p[:, 4] < halves) & (used.sum(axis=1) >= 12)
-    return np.where(ok[:, None], uv, uv0), ok
+    db = basis - bm[:, None]
+    contrast = np.sum(taper * db * (values - vm[:, None]), axis=1) \
+        / np.maximum(np.sum(taper * db ** 2, axis=1), 1e-12)
+    return np.column_stack([vm - contrast * bm, contrast])
 
 
-def _edges(sx, sy, c, th, s):
-    """erf edge terms, their derivatives and the signed distances (all (N, P, K))."""
-    dx = sx - c[:, 0, None, None]
-    dy = sy - c[:, 1, None, None]
-    c1, s1 = np.cos(th[:, 0])[:, None, None], np.sin(th[:, 0])[:, None, None]
-    c2, s2 = np.cos(th[:, 1])[:, None, None], np.sin(th[:, 1])[:, None, None]
-    d1 = c1 * dx + s1 * dy
-    d2 = c2 * dx + s2 * dy
-    k = (1.0 / (np.sqrt(2.0) * np.sqrt(s ** 2 + SUB_VAR)))[:, None, None]
-    e1, e2 = erf(d1 * k), erf(d2 * k)
-    g1 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d1 * k) ** 2)       # d e1 / d d1
-    g2 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d2 * k) ** 2)
-    return e1, e2, g1, g2, d1, d2, dx, dy, (c1, s1), (c2, s2)
+def _saddle_basis(geom, sub_xy1):
+    """Pixel-averaged product of the two erf edges (n, P) and its derivatives (n, P, 5).
+
+    ``geom`` (n, >= 5) holds the corner offset from the window centre (px), the two edge normals
+    (rad) and the blur (px); ``sub_xy1`` (3, K, P), float32, the sub-sample offsets (x, y) from the
+    centre and ones. The per-sub-sample work is float32 (offsets within a window: 1e-6 px
+    resolution), laid out (n, K, P); the results are float64.
+    """
+    blur = geom[:, 4]
+    k = 1.0 / np.sqrt(2.0 * (blur ** 2 + SUB_VAR))   # (n,) 1 / (√2 s_eff)
+    kc, ks = k[:, None] * np.cos(geom[:, 2:4]), k[:, None] * np.sin(geom[:, 2:4])   # (n, 2)
+    u, v = geom[:, 0:1], geom[:, 1:2]
+    # Scaled distances across (x_i = k d_i) and along (y_i) edge i as affine maps of the
+    # sub-sample offsets, all four in one matrix product: (4, n, 3) @ (3, K P).
+    affine = np.concatenate([np.stack([kc, ks, -(kc * u + ks * v)], axis=2),
+                             np.stack([-ks, kc, ks * u - kc * v], axis=2)], axis=1)   # (n, 4, 3)
+    affine = np.ascontiguousarray(affine.transpose(1, 0, 2), dtype=np.float32).reshape(-1, 3)
+    x1, x2, y1, y2 = (affine @ sub_xy1.reshape(3, -1)).reshape((4, len(geom)) + sub_xy1.shape[1:])
+    e1, gauss1 = _edge_terms(x1)
+    e2, gauss2 = _edge_terms(x2)
+    g1e2 = gauss1 * e2                                # d(e1 e2)/d x1 · √π / 2
+    e1g2 = e1 * gauss2
+    across = g1e2 * x1 + e1g2 * x2
+    means = [a.mean(axis=1).astype(np.float64)
+             for a in (e1 * e2, g1e2, e1g2, g1e2 * y1, e1g2 * y2, across)]   # each (n, P)
+    basis, mean_g1e2, mean_e1g2, along1, along2, mean_across = means
+    slope = 2.0 / np.sqrt(np.pi)                      # erf'(0)
+    d_basis = np.empty(basis.shape + (5,))
+    d_basis[:, :, 0] = -slope * (kc[:, 0, None] * mean_g1e2 + kc[:, 1, None] * mean_e1g2)   # d x_i / d u = -k cos θ_i
+    d_basis[:, :, 1] = -slope * (ks[:, 0, None] * mean_g1e2 + ks[:, 1, None] * mean_e1g2)
+    d_basis[:, :, 2] = slope * along1                 # d x_1 / d θ_1 = y_1
+    d_basis[:, :, 3] = slope * along2
+    d_basis[:, :, 4] = -slope * mean_across * (blur / (blur ** 2 + SUB_VAR))[:, None]   # d x_i / d s = -x_i s / s_eff²
+    return basis, d_basis
 
 
-def _cost(p, sx, sy, values, taper):
-    e1, e2 = _edges(sx, sy, p[:, :2], p[:, 2:4], p[:, 4])[:2]
-    r = p[:, 5:6] + p[:, 6:7] * (e1 * e2).mean(axis=2) - values
-    cost = np.sum(taper * r ** 2, axis=1)
-    return np.where(np.isfinite(cost), cost, np.inf)
+#: Beyond this scaled distance from an edge, erf is ±1 and exp(-x²) 0 to float32 precision (1e-7).
+ERF_SATURATION = 4.0
 
 
-def _residual_jacobian(p, sx, sy, values):
-    """Residuals (N, P) and Jacobian (N, P, 7) of the model with respect to (u, v, θ1, θ2, s, m, A)."""
-    c, th, s, m, A = p[:, :2], p[:, 2:4], p[:, 4], p[:, 5:6], p[:, 6:7]
-    e1, e2, g1, g2, d1, d2, dx, dy, (c1, s1), (c2, s2) = _edges(sx, sy, c, th, s)
-    Ak = A[:, :, None]
-    r = m + A * (e1 * e2).mean(axis=2) - values
-    J = np.empty(sx.shape[:2] + (7,))
-    ge2, e1g = g1 * e2, e1 * g2
-    J[:, :, 0] = -(Ak * (ge2 * c1 + e1g * c2)).mean(axis=2)
-    J[:, :, 1] = -(Ak * (ge2 * s1 + e1g * s2)).mean(axis=2)
-    J[:, :, 2] = (Ak * ge2 * (-s1 * dx + c1 * dy)).mean(axis=2)
-    J[:, :, 3] = (Ak * e1g * (-s2 * dx + c2 * dy)).mean(axis=2)
-    s_eff2 = (s ** 2 + SUB_VAR)[:, None, None]                      # d s_eff / d s = s / s_eff
-    J[:, :, 4] = -(Ak * (ge2 * d1 + e1g * d2) * s[:, None, None] / s_eff2).mean(axis=2)
-    J[:, :, 5] = 1.0
-    J[:, :, 6] = (e1 * e2).mean(axis=2)
-    return r, J
+def _edge_terms(x):
+    """erf(x) and exp(-x²), same shape and type as ``x``, computed only within
+    :data:`ERF_SATURATION` of the edge (a sharp edge's band is a few pixels of a 25-pixel window;
+    beyond it exp would also underflow, which is slow)."""
+    near = np.flatnonzero(np.abs(x) < ERF_SATURATION)
+    x_near = x.reshape(-1).take(near)
+    gauss_near = _gauss(x_near)
+    erf_x = np.sign(x)
+    erf_x.reshape(-1).put(near, _erf(x_near, gauss_near))
+    gauss = np.zeros_like(x)
+    gauss.reshape(-1).put(near, gauss_near)
+    return erf_x, gauss
+
+
+def _gauss(x):
+    """exp(-x²), same shape and type as ``x``."""
+    out = np.square(x)
+    np.negative(out, out=out)
+    return np.exp(out, out=out)
+
+
+#: Abramowitz & Stegun 7.1.26: erf(x) = 1 - t (a1 + a2 t + ... + a5 t⁴) exp(-x²), t = 1 / (1 + p x).
+_ERF_P = 0.3275911
+_ERF_A = (0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429)
+
+
+def _erf(x, gauss):
+    """erf(x) from x and exp(-x²), any shape, |error| < 1.5e-7 (6e-7 in float32).
+
+    Written here because scipy.special.erf is not vectorised (~45 ns a value, 6x this on float32)
+    and the fit needs exp(-x²) anyway; the error is 1e-5 DN for a contrast of 100 DN.
+    """
+    t = np.abs(x) * _ERF_P
+    t += 1.0
+    np.reciprocal(t, out=t)
+    poly = _ERF_A[4] * t
+    for a in _ERF_A[3::-1]:
+        poly += a
+        poly *= t
+    poly *= gauss
+    np.subtract(1.0, poly, out=poly)
+    return np.copysign(poly, x, out=poly)
 
 
 #: Pixels kept clear of the ends of a saddle's valid region (blur and the start's error), px.
