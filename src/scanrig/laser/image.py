@@ -36,6 +36,7 @@ import numpy as np
 
 from scanrig.errors import InputError, ShapeError
 from scanrig.laser.clip_level import channel_clip_levels
+from scanrig.laser.colour_check import grey_frames
 from scanrig.laser.noise import (
     CORRELATED_NOISE_MIN,
     NOISE_CELL,
@@ -258,7 +259,8 @@ def prepare_image(
     Parameters
     ----------
     image : (H, W) or (H, W, 3) uint8 or uint16 array
-        The frame as read (RGB order for colour), DN.
+        The frame as read (RGB order for colour), DN. Three equal channels are a grey frame
+        (:func:`~scanrig.laser.colour_check.grey_frames`), whatever ``color`` says.
     color : {"grey", "red", "green", "blue"}
         Laser colour.
     dark : array like ``image``, optional
@@ -292,6 +294,9 @@ def prepare_image(
         if dark.shape != image.shape or dark.dtype != image.dtype:
             raise ShapeError(f"dark must match image ({image.shape} {image.dtype}), "
                              f"got {dark.shape} {dark.dtype}")
+    # a grey frame stored as three equal channels is grey: a colour laser's signal there, its
+    # channel minus the others, would be 0
+    image, dark = grey_frames(image, dark)
     u0, v0, u1, v1 = _check_roi(roi, image.shape)
     image = image[v0:v1, u0:u1]
     dark = None if dark is None else dark[v0:v1, u0:u1]

@@ -28,7 +28,7 @@ import pyarrow.compute as pc
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
-from scanrig.laser.colour_check import colour_advice, colour_shown, grey_frames
+from scanrig.laser.colour_check import colour_advice, colour_shown
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.image import LASER_COLORS
@@ -255,8 +255,7 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     """The candidates of one frame with the session's options.
 
     A frame whose three channels are equal (and its laser-off frame's) is detected as the grey
-    frame it is (:func:`~scanrig.laser.colour_check.grey_frames`): a colour laser's signal, its
-    channel minus the others, would be 0 there.
+    frame it is (:func:`~scanrig.laser.image.prepare_image`).
 
     Parameters
     ----------
@@ -277,7 +276,6 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     from scanrig.laser.stripes import detect_stripe
 
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
-    image, dark = grey_frames(image, dark)
     return detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
                   saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame, **scan)
 
