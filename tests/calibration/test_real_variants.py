@@ -160,25 +160,37 @@ def test_an_unreadable_view_is_a_one_line_error_naming_it(tmp_path, capsys, corr
     assert not (tmp_path / "rig.toml").exists()
 
 
+@pytest.mark.parametrize("suffix", [".bmp", ".pgm", ".tif"])
+def test_views_in_other_lossless_formats_give_the_same_calibration(tmp_path, baseline, suffix):
+    """The views as BMP, PGM or TIFF (as machine-vision cameras' tools save them): the very pixels of
+    the shipped JPEGs, so the very calibration."""
+    params, sigma, rms, not_found = solve(left_session(tmp_path, lambda a: a, suffix))
+    assert not_found == []
+    np.testing.assert_array_equal(params, baseline[0])
+    np.testing.assert_array_equal(sigma, baseline[1])
+
+
 def test_views_in_a_format_it_does_not_read_are_named(tmp_path, capsys):
-    """BMP views: one error line naming the first view and the formats read, exit 2; before, the
-    folder of 2 views was said to hold no calibration images."""
-    root = left_session(tmp_path, lambda a: a, ".bmp", views=2)
+    """A camera raw file among the views: one error line naming it and the formats read, exit 2;
+    not a view silently left out."""
+    root = left_session(tmp_path, views=2)
+    raw = root / "calibration" / "left" / "03.nef"
+    raw.write_bytes(b"MM\x00* a camera raw file")
     assert main(["calibrate", str(root), "--no-plots", "--no-cross-validate"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and errors[0].startswith(f"error: {root / 'calibration' / 'left' / '01.bmp'}: ")
+    assert len(errors) == 1 and errors[0].startswith(f"error: {raw}: ")
     assert ".png" in errors[0] and not (root / "rig.toml").exists()
 
 
 def test_light_plane_views_in_a_format_it_does_not_read_are_named(tmp_path, capsys):
-    """A BMP light-plane view: named, exit 2; before, the folder was said to hold no light-plane images."""
+    """A camera raw light-plane view: named, exit 2; not a folder said to hold no light-plane images."""
     root = left_session(tmp_path, views=2)
     (root / "light_plane" / "left").mkdir(parents=True)
-    bmp = root / "light_plane" / "left" / "01.bmp"
-    assert cv2.imwrite(str(bmp), read_image(OPENCV / "left01.jpg"))
+    raw = root / "light_plane" / "left" / "01.dng"
+    raw.write_bytes(b"II*\x00 a camera raw file")
     assert main(["calibrate", str(root), "--no-plots", "--no-cross-validate", "--light-plane", "--color", "red"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and errors[0].startswith(f"error: {bmp}: ") and ".png" in errors[0]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {raw}: ") and ".png" in errors[0]
 
 
 def test_rotated_views_rotate_the_intrinsics(tmp_path, baseline):

@@ -10,8 +10,8 @@ import pytest
 
 from scanrig.cli.main import main
 from scanrig.errors import FileFormatError, InputError
-from scanrig.io.session import read_image, write_image
-from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_session
+from scanrig.io.session import Session, read_image, write_image
+from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_session, options_from_session
 from scanrig.laser.traces import SCHEMA, read_traces, write_traces
 
 from .synth import spot_image, stripe_image
@@ -207,6 +207,21 @@ def test_saturation_level_option_is_checked_and_recorded(session, capsys):
         DetectOptions(saturation_level="max")
     assert main(["detect", str(session), "--saturation-level", "auto"]) == 0
     assert read_traces(session / "traces.parquet")[1]["options"]["saturation_level"] == "auto"
+
+
+def test_saturation_level_from_session_toml(session, capsys):
+    """``saturation_level`` in session.toml is the default of ``--saturation-level``; a bad value
+    names the file."""
+    toml = session / "session.toml"
+    toml.write_text('laser_mode = "spot"\nlaser_color = "red"\nsaturation_level = 250\n')
+    assert options_from_session(Session(session)).saturation_level == 250
+    assert options_from_session(Session(session), saturation_level="auto").saturation_level == "auto"
+    assert main(["detect", str(session)]) == 0
+    assert read_traces(session / "traces.parquet")[1]["options"]["saturation_level"] == 250
+    toml.write_text('laser_mode = "spot"\nlaser_color = "red"\nsaturation_level = "max"\n')
+    assert main(["detect", str(session)]) == 2
+    assert (f"error: {toml}: saturation_level must be a positive number of DN or \"auto\", got 'max'"
+            in capsys.readouterr().err)
 
 
 def _clipped_stripe_session(root, dtype, scale):

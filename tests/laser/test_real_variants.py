@@ -337,7 +337,7 @@ def write_frame(path: Path, rgb: np.ndarray) -> None:
 def detect_cli(root: Path, on: np.ndarray, off: np.ndarray, suffix: str, color: str = "red") -> int:
     """``scanrig detect`` on a session of one camera: ``scan/cam0/00000<suffix>`` and its ``dark``."""
     folder = root / "scan" / "cam0"
-    folder.mkdir(parents=True)
+    folder.mkdir(parents=True, exist_ok=True)
     write_frame(folder / f"00000{suffix}", on)
     write_frame(folder / f"dark{suffix}", off)
     (root / "session.toml").write_text(f'laser_mode = "stripe"\nlaser_color = "{color}"\n')
@@ -364,6 +364,8 @@ SESSIONS = {
     "16-bit PNG": (_sixteen, ".png", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
     "16-bit TIFF": (_sixteen, ".tif", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
     "RGBA PNG": (_rgba, ".png", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
+    "BMP": (lambda a: a, ".bmp", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
+    "16-bit PPM": (_sixteen, ".ppm", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
 }
 
 
@@ -443,12 +445,14 @@ def test_detect_verb_saturation_level_option(tmp_path, frames, reference, baseli
 
 
 def test_detect_verb_on_frames_in_a_format_it_does_not_read(tmp_path, frames, capsys):
-    """BMP frames (as some camera tools save them): one error line naming the first frame and the
-    formats read, exit 2; before, ``0 candidates in 0 camera frames``, exit 0 and an empty
-    traces.parquet."""
-    assert detect_cli(tmp_path, *frames, ".bmp") == 2
+    """A camera raw file among PNG frames: one error line naming it and the formats read, exit 2,
+    nothing written; not a frame silently left out."""
+    raw = tmp_path / "scan" / "cam0" / "00001.nef"
+    raw.parent.mkdir(parents=True)
+    raw.write_bytes(b"MM\x00* a camera raw file")
+    assert detect_cli(tmp_path, *frames, ".png") == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and errors[0].startswith(f"error: {tmp_path / 'scan' / 'cam0' / '00000.bmp'}: ")
+    assert len(errors) == 1 and errors[0].startswith(f"error: {raw}: ")
     assert ".png" in errors[0] and not (tmp_path / "traces.parquet").exists()
 
 

@@ -3,11 +3,11 @@
 ::
 
     SESSION/
-      session.toml                 optional: camera order, laser colour and mode, target file
+      session.toml                 optional: camera order, laser colour and mode, clip level, target file
       target.toml                  the calibration target
-      calibration/<camera>/<shot>.<png|jpg|tif>
+      calibration/<camera>/<shot>.<ext>              (<ext>: IMAGE_SUFFIXES)
       calibration_intrinsic/<camera>/<image>.<ext>   optional: each camera's own intrinsic calibration
-      scan/<camera>/<frame>.<png|jpg|tif>     (+ optional dark.<ext>, the laser-off frame)
+      scan/<camera>/<frame>.<ext>                    (+ optional dark.<ext>, the laser-off frame)
       rig.toml, traces.parquet, points.ply, surface.ply, mesh.ply, report.html
       truth/                       simulator only
 """
@@ -23,15 +23,19 @@ import numpy as np
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.toml_fields import check_keys, read_toml
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-#: Image files that cameras and their tools save but scanrig does not read: in a camera folder they
-#: are an error naming them, not frames silently left out.
-UNREAD_IMAGE_SUFFIXES = (".bmp", ".dib", ".pgm", ".ppm", ".pnm", ".pbm", ".pfm", ".webp", ".jp2", ".gif", ".exr",
-                         ".hdr", ".avif", ".heic", ".dng", ".raw", ".nef", ".cr2", ".arw")
+#: Images read (8- or 16-bit, grey or colour): PNG, TIFF, BMP and the PNM family (PGM, PPM) as
+#: machine-vision cameras' tools save them, lossless; JPEG and WebP.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".dib", ".pgm", ".ppm", ".pnm", ".webp")
+#: Image files that cameras and their tools save but scanrig does not read (1-bit, palette,
+#: floating-point and camera raw files): in a camera folder they are an error naming them, not
+#: frames silently left out.
+UNREAD_IMAGE_SUFFIXES = (".pbm", ".pfm", ".jp2", ".gif", ".exr", ".hdr", ".avif", ".heic", ".dng", ".raw", ".nef",
+                         ".cr2", ".arw")
 #: Stem of the optional laser-off frame in ``scan/<camera>/``.
 DARK_STEM = "dark"
 STAGES = ("calibration", "calibration_intrinsic", "scan")
-_SESSION_KEYS = ("cameras", "laser_color", "laser_mode", "target", "seed", "created_by", "notes")
+_SESSION_KEYS = ("cameras", "laser_color", "laser_mode", "saturation_level", "target", "seed", "created_by",
+                 "notes")
 
 
 def natural_key(text: str):
@@ -91,6 +95,9 @@ class Session:
         if cams is not None and len(set(cams)) != len(cams):
             duplicated = sorted({c for c in cams if cams.count(c) > 1})
             raise FileFormatError(path, f"cameras must be unique, duplicated: {duplicated}")
+        level = doc.get("saturation_level", "auto")
+        if not (level == "auto" or (isinstance(level, (int, float)) and not isinstance(level, bool) and level > 0)):
+            raise FileFormatError(path, f"saturation_level must be a positive number of DN or \"auto\", got {level!r}")
         return doc
 
     # --- cameras and images --------------------------------------------------------------------
@@ -182,7 +189,7 @@ def images_by_stem(folder: Path, skip_stem: str | None = None) -> dict[str, Path
     for p in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
         if p.suffix.lower() in UNREAD_IMAGE_SUFFIXES:
             raise FileFormatError(p, f"{p.suffix} images are not read; save the frames as "
-                                     f"{', '.join(IMAGE_SUFFIXES)} (PNG and TIFF are lossless)")
+                                     f"{', '.join(IMAGE_SUFFIXES)} (PNG, TIFF, BMP and PNM are lossless)")
         if p.suffix.lower() in IMAGE_SUFFIXES and p.stem != skip_stem:
             if p.stem in paths:
                 raise FileFormatError(p, f"two images share the stem {p.stem!r} (also {paths[p.stem].name})")

@@ -114,11 +114,12 @@ class DetectOptions:
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
                          roi=None, k_detect: float = 6.0, direction: str = "auto", dark: str = "file",
                          saturation_level: float | str | None = None) -> DetectOptions:
-    """Options with ``mode`` and ``color`` defaulting to ``laser_mode`` / ``laser_color`` of session.toml."""
+    """Options with ``mode``, ``color`` and ``saturation_level`` defaulting to ``laser_mode``,
+    ``laser_color`` and ``saturation_level`` of session.toml."""
     settings = session.settings()
     return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
                          None if roi is None else tuple(int(x) for x in roi), k_detect, direction, dark,
-                         saturation_level)
+                         settings.get("saturation_level") if saturation_level is None else saturation_level)
 
 
 @dataclass
