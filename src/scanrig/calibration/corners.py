@@ -12,10 +12,10 @@ carrying the rest of the box's variance as a Gaussian (:data:`SUB_VAR`). A Gauss
 the whole box (one sample per pixel) mis-locates sharp edges that run along the pixel grid by up
 to 0.2 px, depending on their sub-pixel phase; sub-sampling removes that. The seven parameters
 are fitted to the pixels of a window by Gauss–Newton with Levenberg damping, all corners of an
-image at once (batched numpy); a corner leaves the batch once it has converged. Unlike ``cornerSubPix`` (a gradient-orthogonality criterion that
-blur and noise bias) and the Radon-transform detector (a fixed kernel), the fit uses every pixel
-with its actual blur, which is what the acceptance bench measures
-(benchmarks/bench_calibration.py).
+image at once (batched numpy); a corner leaves the batch once it has converged. Unlike
+``cornerSubPix`` (a gradient-orthogonality criterion that blur and noise bias) and the
+Radon-transform detector (a fixed kernel), the fit uses every pixel with its actual blur, which
+is what the acceptance bench measures (benchmarks/bench_calibration.py).
 
 Each corner may have its own window and its own pixel weights (e.g. ChArUco corners, whose
 white squares carry markers: only the pixels where the saddle model holds are used; see
@@ -23,11 +23,14 @@ white squares carry markers: only the pixels where the saddle model holds are us
 
 Written here because OpenCV has no model-fitting corner refiner; only the pixel gather and the
 7x7 solves are per corner, both vectorised. Speed: the per-sub-sample work (9 x 625 samples a
-corner for a 25-pixel window) is float32, in one affine matrix product for the distances to the
-edges and with erf and exp(-x²) evaluated only within a few blur widths of each edge; one model
-evaluation per iteration serves both the trial's cost and the next Jacobian. On the 16 Ciclop
-webcam views (66 corners, 960 x 1280) that takes the median CPU time per view from 1.5 s to
-0.2 s (``python benchmarks/bench_calibration.py --sections 1`` prints it beside cornerSubPix).
+corner for a 25-pixel window) takes the distances to the edges from one affine matrix product
+and evaluates erf and exp(-x²) only within a few blur widths of each edge, in blocks of corners
+whose arrays stay in the cache; one model evaluation per iteration serves both the trial's cost
+and the next Jacobian. On the 16 Ciclop webcam views (66 corners, 960 x 1280) that takes the
+median CPU time per view from 1.2-1.4 s to 0.17-0.23 s (``python benchmarks/bench_calibration.py
+--sections 1`` prints it beside cornerSubPix's 2 ms). It stays float64: in float32 (1.6 times
+as fast) the round-off decides when a corner's step falls below :data:`STEP_TOL_PX`, and views
+rotated by 90 degrees no longer give the rotated intrinsics to 1e-6 px (6e-5 px).
 """
 
 from __future__ import annotations
@@ -131,7 +134,7 @@ def fit_saddles(img: np.ndarray, uv0: np.ndarray, theta0: np.ndarray, half,
     values, taper, inside = _gather_windows(img, centre, halves, ox, oy, pixel_weight)
     # Sub-sample offsets (x, y) from the window centre and ones, (3, K, P), the same for every corner.
     sub_xy1 = np.stack([ox[None, :] + SUB_X[:, None], oy[None, :] + SUB_Y[:, None],
-                        np.ones((len(SUB_X), len(ox)))]).astype(np.float32)
+                        np.ones((len(SUB_X), len(ox)))])
     # Parameters (N, 7): corner offset from its window centre (px), edge normals (rad), blur (px),
     # mean level and contrast (image units), the last two fitted to the starting geometry.
     params = np.column_stack([uv0 - centre, theta0, np.ones(n), np.zeros((n, 2))])
@@ -228,13 +231,24 @@ def _linear_fit(basis, values, taper):
     return np.column_stack([vm - contrast * bm, contrast])
 
 
+#: Corners whose sub-samples are processed together: a block's (n, K, P) arrays (8 x 9 x 625
+#: float64, 360 kB) stay in the cache, where all corners' arrays (3 MB each) would not.
+BLOCK_CORNERS = 8
+
+
 def _saddle_basis(geom, sub_xy1):
+    """:func:`_saddle_block` over blocks of :data:`BLOCK_CORNERS` corners: (n, P), (n, P, 5)."""
+    blocks = [_saddle_block(geom[i:i + BLOCK_CORNERS], sub_xy1)
+              for i in range(0, max(len(geom), 1), BLOCK_CORNERS)]
+    return tuple(np.concatenate(parts) for parts in zip(*blocks))
+
+
+def _saddle_block(geom, sub_xy1):
     """Pixel-averaged product of the two erf edges (n, P) and its derivatives (n, P, 5).
 
     ``geom`` (n, >= 5) holds the corner offset from the window centre (px), the two edge normals
-    (rad) and the blur (px); ``sub_xy1`` (3, K, P), float32, the sub-sample offsets (x, y) from the
-    centre and ones. The per-sub-sample work is float32 (offsets within a window: 1e-6 px
-    resolution), laid out (n, K, P); the results are float64.
+    (rad) and the blur (px); ``sub_xy1`` (3, K, P) the sub-sample offsets (x, y) from the
+    centre and ones. The per-sub-sample work is laid out (n, K, P).
     """
     blur = geom[:, 4]
     k = 1.0 / np.sqrt(2.0 * (blur ** 2 + SUB_VAR))   # (n,) 1 / (√2 s_eff)
@@ -244,16 +258,21 @@ def _saddle_basis(geom, sub_xy1):
     # sub-sample offsets, all four in one matrix product: (4, n, 3) @ (3, K P).
     affine = np.concatenate([np.stack([kc, ks, -(kc * u + ks * v)], axis=2),
                              np.stack([-ks, kc, ks * u - kc * v], axis=2)], axis=1)   # (n, 4, 3)
-    affine = np.ascontiguousarray(affine.transpose(1, 0, 2), dtype=np.float32).reshape(-1, 3)
+    affine = np.ascontiguousarray(affine.transpose(1, 0, 2)).reshape(-1, 3)
     x1, x2, y1, y2 = (affine @ sub_xy1.reshape(3, -1)).reshape((4, len(geom)) + sub_xy1.shape[1:])
     e1, gauss1 = _edge_terms(x1)
     e2, gauss2 = _edge_terms(x2)
     g1e2 = gauss1 * e2                                # d(e1 e2)/d x1 · √π / 2
     e1g2 = e1 * gauss2
-    across = g1e2 * x1 + e1g2 * x2
-    means = [a.mean(axis=1).astype(np.float64)
-             for a in (e1 * e2, g1e2, e1g2, g1e2 * y1, e1g2 * y2, across)]   # each (n, P)
-    basis, mean_g1e2, mean_e1g2, along1, along2, mean_across = means
+
+    def mean_k(a, b):
+        """Average over the sub-samples of a product, (n, P), without the (n, K, P) temporary."""
+        return np.einsum("nkp,nkp->np", a, b) / a.shape[1]
+
+    basis = mean_k(e1, e2)
+    mean_g1e2, mean_e1g2 = g1e2.mean(axis=1), e1g2.mean(axis=1)
+    along1, along2 = mean_k(g1e2, y1), mean_k(e1g2, y2)
+    mean_across = mean_k(g1e2, x1) + mean_k(e1g2, x2)
     slope = 2.0 / np.sqrt(np.pi)                      # erf'(0)
     d_basis = np.empty(basis.shape + (5,))
     d_basis[:, :, 0] = -slope * (kc[:, 0, None] * mean_g1e2 + kc[:, 1, None] * mean_e1g2)   # d x_i / d u = -k cos θ_i
@@ -264,7 +283,8 @@ def _saddle_basis(geom, sub_xy1):
     return basis, d_basis
 
 
-#: Beyond this scaled distance from an edge, erf is ±1 and exp(-x²) 0 to float32 precision (1e-7).
+#: Beyond this scaled distance from an edge, erf is ±1 and exp(-x²) 0 to the accuracy of :func:`_erf`
+#: (erfc(4) = 1.5e-8, exp(-16) = 1.1e-7).
 ERF_SATURATION = 4.0
 
 
@@ -295,10 +315,11 @@ _ERF_A = (0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429)
 
 
 def _erf(x, gauss):
-    """erf(x) from x and exp(-x²), any shape, |error| < 1.5e-7 (6e-7 in float32).
+    """erf(x) from x and exp(-x²), any shape, |error| < 1.5e-7.
 
-    Written here because scipy.special.erf is not vectorised (~45 ns a value, 6x this on float32)
-    and the fit needs exp(-x²) anyway; the error is 1e-5 DN for a contrast of 100 DN.
+    Written here because scipy.special.erf is not vectorised (~45 ns a value here, 2/3 of the
+    fit's time before) and the fit needs exp(-x²) anyway; the error is 1.5e-5 DN for a contrast
+    of 100 DN.
     """
     t = np.abs(x) * _ERF_P
     t += 1.0
