@@ -7,7 +7,8 @@ BLAS only adds contention (see src/scanrig/calibration/lm.py).
 Sections:
 1. corner accuracy on rendered chessboards (blur 0-2.5 px, noise 2-6 DN, tilts to 60 deg):
    cv2.cornerSubPix (window sized to the squares), cv2.findChessboardCornersSB + ACCURACY, and
-   scanrig's saddle-model refinement, RMS against the analytic truth;
+   scanrig's saddle-model refinement, RMS against the analytic truth; then the refiners' CPU
+   time per view on the 16 real Ciclop views (960x1280, 66 corners each);
 2. simulated 3-camera rig, calibrated with the recommended protocol (0.4 m cube with 14 x 14
    squares per face, 80 shots moved over the cameras' fields of view and depth range, as in
    docs/calibration.md; ``covering_target_poses``): errors against the truth and the spread of
@@ -94,6 +95,43 @@ def corner_accuracy(n_images: int, rng: np.random.Generator) -> None:
         r = {k: rms(np.concatenate(v)) for k, v in errs.items()}
         print(f"{blur:5.1f}, {noise:4.1f} | {r['subpix']:12.4f} | {r['sb']:12.4f} | {r['ours']:8.4f} | "
               f"{r['ours'] / r['subpix']:11.2f} | {r['ours'] / r['sb']:8.2f} | {sb_fail}")
+
+
+#: Real chessboard views for the speed line of section 1: the Ciclop scanner's webcam, 16 views of
+#: 11 x 6 inner corners, 960 x 1280 (tests/data, CC BY-SA 4.0: see its PROVENANCE.md).
+CICLOP_VIEWS = Path(__file__).resolve().parents[1] / "tests" / "data" / "ciclop-laser-stripes" / "camera_calibration"
+
+
+def corner_speed(n_views: int) -> None:
+    """Per-view CPU time of the corner refiners on the Ciclop views.
+
+    ``cornerSubPix`` refines ``findChessboardCorners``' corners and the saddle fit refines its
+    result, as the detector chains them (detection and ordering not timed). CPU time, so other
+    processes' load counts less than in wall time (but still does through the caches).
+    """
+    views = sorted(CICLOP_VIEWS.glob("frame*.jpg"), key=lambda f: int(f.stem.removeprefix("frame")))[:n_views]
+    if not views:
+        print("\nspeed: Ciclop views absent, skipped")
+        return
+    size = (11, 6)
+    times = {"subpix": [], "ours": []}
+    for path in views:
+        grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        found, c = cv2.findChessboardCorners(grey, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+        if not found:
+            continue
+        half = subpix_half_window(c.reshape(-1, 2), size)
+        t0 = time.process_time()
+        c = cv2.cornerSubPix(grey, c, (half, half), (-1, -1),
+                             (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
+        times["subpix"].append(time.process_time() - t0)
+        uv = orient_chessboard(grey, c.reshape(-1, 2).astype(float), size)
+        t0 = time.process_time()
+        refine_corners(grey, uv, size)
+        times["ours"].append(time.process_time() - t0)
+    sub, ours = (np.median(times[k]) for k in ("subpix", "ours"))
+    print(f"speed, {len(times['ours'])} Ciclop views 960x1280 (66 corners each), median CPU per view: "
+          f"cornerSubPix {sub * 1e3:.1f} ms, scanrig {ours * 1e3:.0f} ms (ratio {ours / sub:.0f})")
 
 
 #: Calibration protocol of section 2, the one docs/calibration.md recommends for this rig: a cube
@@ -345,6 +383,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     if 1 in run:
         corner_accuracy(3 if args.quick else 15, rng)
+        corner_speed(4 if args.quick else 16)
     if 2 in run:
         seeds = args.seeds or (2 if args.quick else 20)
         cube_rig(seeds, PROTOCOL, "2. Recommended protocol")
