@@ -52,7 +52,7 @@ def help_example(verb: str) -> str:
 
 @dataclass(frozen=True)
 class DemoRun:
-    """One finished ``scanrig demo`` process.
+    """One finished ``scanrig`` process (the demo, or the simulator's help example).
 
     Attributes
     ----------
@@ -83,6 +83,14 @@ class DemoRun:
         """Fail with the command and the end of its output unless it exited 0."""
         assert self.returncode == 0, f"{self.command} exited {self.returncode}:\n{self.output[-3000:]}"
 
+    def to_record(self) -> dict:
+        """The run as JSON-ready values, read back by :meth:`from_record`."""
+        return dataclasses.asdict(self) | {"out": str(self.out)}
+
+    @classmethod
+    def from_record(cls, record: dict) -> DemoRun:
+        return cls(**(record | {"out": Path(record["out"])}))
+
 
 @dataclass(frozen=True)
 class QuickDemo:
@@ -93,13 +101,11 @@ class QuickDemo:
 
     def to_json(self) -> str:
         """The record another test process reads back with :meth:`from_json`."""
-        return json.dumps({name: dataclasses.asdict(run) | {"out": str(run.out)}
-                           for name, run in (("example", self.example), ("one_thread", self.one_thread))})
+        return json.dumps({"example": self.example.to_record(), "one_thread": self.one_thread.to_record()})
 
     @classmethod
     def from_json(cls, text: str) -> QuickDemo:
-        runs = json.loads(text)
-        return cls(**{name: DemoRun(**(run | {"out": Path(run["out"])})) for name, run in runs.items()})
+        return cls(**{name: DemoRun.from_record(run) for name, run in json.loads(text).items()})
 
 
 def _start(command: str, cwd: Path, threads: int) -> subprocess.Popen:
@@ -133,3 +139,16 @@ def run_quick_demo(folder: Path) -> QuickDemo:
         output = process.communicate(timeout=DEMO_TIMEOUT_S)[0]
         runs[name] = DemoRun(commands[name], folder / name / out_name, process.returncode, output)
     return QuickDemo(**runs)
+
+
+def run_simulate_example(folder: Path) -> DemoRun:
+    """``scanrig simulate --help``'s example as written, in ``folder`` (created if need be).
+
+    The small session it writes is the one several tests work on (``small_session`` in
+    ``tests/conftest.py``): the help example's test and the docs pages' ``SESSION``.
+    """
+    command = help_example("simulate")
+    folder.mkdir(parents=True, exist_ok=True)
+    run = subprocess.run([sys.executable, "-m", "scanrig", *shlex.split(command)[1:]], check=False, cwd=folder,
+                         capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
+    return DemoRun(command, folder / shlex.split(command)[2], run.returncode, run.stdout + run.stderr)

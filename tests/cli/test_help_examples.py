@@ -4,12 +4,15 @@ The examples run in one scratch folder, in pipeline order (``VERB_ORDER``), so t
 finds what the earlier ones made (``scanrig simulate demo_session ...`` first, then calibrate,
 detect, reconstruct, ... on ``demo_session``), as a newcomer pasting them would. A verb whose
 example cannot run fails with the command line and its output. The demo's example is the test
-session's shared quick demo run (``tests/quick_demo.py``), which writes a folder of its own.
+session's shared quick demo run (``tests/quick_demo.py``), which writes a folder of its own; the
+simulator's is the shared small session (``small_session`` in ``tests/conftest.py``, which the
+docs pages use too), copied into the scratch folder.
 """
 
 import importlib
 import pkgutil
 import shlex
+import shutil
 import subprocess
 import sys
 
@@ -55,6 +58,12 @@ def test_example_runs_as_written(verb, workspace, request):
         demo = request.getfixturevalue("quick_demo").example
         assert demo.command == command
         demo.check()
+        return
+    if verb == "simulate":
+        simulated = request.getfixturevalue("small_session")
+        assert simulated.command == command
+        simulated.check()
+        shutil.copytree(simulated.out, workspace / simulated.out.name)
         return
     run = subprocess.run([sys.executable, "-m", "scanrig", *shlex.split(command)[1:]], check=False, cwd=workspace,
                          capture_output=True, text=True, timeout=EXAMPLE_TIMEOUT_S)

@@ -6,7 +6,8 @@ out (docs/contributing.md) are each reported as a skipped test with the page, li
 
 - ``SESSION``, the placeholder of the real-rig pages, is a small simulated session (3 cameras,
   red spot laser, 4 cube poses, 20 frames) copied into the page's folder. It is the simulator
-  page's first session, made by the same command line, which runs once for both.
+  page's first session and ``scanrig simulate --help``'s example, the same command line, which
+  runs once per test run for all of them (``small_session`` in ``tests/conftest.py``).
 - A ``scanrig simulate OUT ...`` or ``scanrig demo --out OUT`` command that opens blocks of
   several pages, identically, runs once; each of those pages gets a copy of the folder it wrote
   (the simulator and the demo are seeded: the copy is what the command writes) and runs the rest
@@ -26,9 +27,12 @@ import shlex
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from tests.quick_demo import DemoRun, help_example
 
 from .markdown_blocks import PAGES, ROOT, Block, blocks
 
@@ -37,9 +41,9 @@ RULES = {
     "install": re.compile(r"^python3? -m venv\b|^(\.|source) \S*\.venv/bin/activate\b|^(python3? -m )?pip install\b"),
     "test suite": re.compile(r"^python3? -m pytest\b"),
 }
-#: The small simulated session that stands in for a real rig's (``SESSION``): the first command of
-#: docs/simulator.md, so that one run serves both.
-SMALL_SESSION = "scanrig simulate demo --scene default --cameras 3 --mode spot --frames 20 --shots 4 --seed 1"
+#: The small simulated session that stands in for a real rig's (``SESSION``): the simulator's help
+#: example, which is also the first command of docs/simulator.md, so that one run serves all.
+SMALL_SESSION = help_example("simulate")
 #: Seconds one block may take: a guard against a hang. The README's full demo takes about 4 min on
 #: 2 idle cores, and over 10 min beside another test worker at load average 8 to 9.
 BLOCK_TIMEOUT_S = 1800
@@ -126,10 +130,14 @@ def _run(script: str, cwd: Path, where: str) -> None:
 
 
 class Sessions:
-    """The sessions several pages use, made once per test run when a page needs them."""
+    """The sessions several pages use, made once per test run when a page needs them.
 
-    def __init__(self, root: Path):
+    ``small_session`` returns the shared run of :data:`SMALL_SESSION` (called when first needed).
+    """
+
+    def __init__(self, root: Path, small_session: Callable[[], DemoRun]):
         self.root = root
+        self._small_session = small_session
         self._simulated: dict[str, Path | None] = {}   # None: the command failed
 
     def raw(self) -> Path:
@@ -138,6 +146,11 @@ class Sessions:
 
     def simulated(self, command: str, where: str) -> Path:
         """The folder that ``command`` (a line of :data:`SHARED_SIMULATIONS`) writes, run once."""
+        if command == SMALL_SESSION:
+            run = self._small_session()
+            if run.returncode != 0:
+                pytest.fail(f"{where}: `{command}` exited {run.returncode}:\n{run.output[-3000:]}", pytrace=False)
+            return run.out
         if command not in self._simulated:
             cwd = self.root / f"simulated-{len(self._simulated)}"
             cwd.mkdir()
@@ -150,8 +163,8 @@ class Sessions:
 
 
 @pytest.fixture(scope="module")
-def sessions(tmp_path_factory):
-    return Sessions(tmp_path_factory.mktemp("docs-sessions"))
+def sessions(tmp_path_factory, request):
+    return Sessions(tmp_path_factory.mktemp("docs-sessions"), lambda: request.getfixturevalue("small_session"))
 
 
 def _output_folder(command: str) -> str:
@@ -218,3 +231,9 @@ def test_a_simulation_that_opens_blocks_of_two_pages_is_shared(tmp_path):
     plans = {tmp_path / name: _plan(tmp_path / name) for name in texts}
     assert _shared_simulations(plans) == {"scanrig simulate tt --frames 2 --seed 1", "scanrig demo --out d"}
     assert [_output_folder(line) for line in sorted(_shared_simulations(plans))] == ["d", "tt"]
+
+
+def test_the_small_session_opens_a_block():
+    """docs/simulator.md opens with the simulator's help example, so that one run of it serves that
+    page, the help example's test and ``SESSION``."""
+    assert SMALL_SESSION in SHARED_SIMULATIONS
