@@ -160,6 +160,19 @@ def test_dark_frame_is_used(session):
     assert len(table.filter(pa.compute.equal(table["camera"], "cam2"))) == N_FRAMES + 1
 
 
+def test_no_candidate_anywhere_writes_nothing_and_keeps_an_earlier_file(session):
+    """Green asked of red spots: no candidate in any frame, so ``detect_session`` returns an empty
+    table and leaves the traces file of an earlier run as it was (the CLI then exits 2)."""
+    first = detect_session(session)
+    before = (session / "traces.parquet").read_bytes()
+    options = DetectOptions("spot", "green")
+    assert len(detect_session(session, options)) == 0
+    assert (session / "traces.parquet").read_bytes() == before and len(first) > 0
+    (session / "traces.parquet").unlink()
+    assert len(detect_session(session, options, checkpoint_s=0.0)) == 0
+    assert not (session / "traces.parquet").exists()
+
+
 def test_traces_file_validation(tmp_path):
     path = tmp_path / "traces.parquet"
     with pytest.raises(FileFormatError, match="traces.parquet: traces file not found"):

@@ -386,13 +386,15 @@ def test_detect_verb_on_grey_frames_with_a_red_laser(tmp_path, frames, reference
 
 def test_detect_verb_on_swapped_channels_says_which_colour(tmp_path, frames, capsys):
     """PNGs written from RGB arrays by cv2.imwrite (red and blue swapped), ``laser_color = "red"``:
-    one line naming the camera, its frame and the colour the frames show, and exit 2 (nothing was
-    detected). Before: exit 0 and "0 candidates in 1 camera frames"."""
+    one line naming the camera, its frame and the colour the frames show, and exit 2 with nothing
+    written (nothing was detected). Before: exit 0, "0 candidates in 1 camera frames" and an empty
+    traces.parquet."""
     assert detect_cli(tmp_path, *(swapped(f) for f in frames), ".png") == 2
     assert capsys.readouterr().err.splitlines() == [
         f"warning: cam0: no red laser in {tmp_path / 'scan' / 'cam0' / '00000.png'}; the frames show a blue one: "
         "use --color blue (or laser_color = 'blue' in session.toml)",
-        f"error: {tmp_path / 'scan'}: no red laser stripe in any of 1 camera frames"]
+        f"error: {tmp_path / 'scan'}: no red laser stripe in any of 1 camera frames; traces.parquet not written"]
+    assert not (tmp_path / "traces.parquet").exists()
 
 
 def test_detect_verb_on_swapped_channels_without_the_laser_off_frame(tmp_path, frames, capsys):

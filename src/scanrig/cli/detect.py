@@ -37,7 +37,7 @@ def command(
     Writes SESSION/traces.parquet (one row per candidate, every candidate, ranked) atomically and
     every 30 s while running; with --resume an interrupted run continues where it stopped. A camera
     whose frames show a laser of another colour is named, one line each; no candidate in any frame
-    is an error (exit 2).
+    is an error (exit 2) and writes nothing.
 
     Example: scanrig detect demo_session --mode spot --color red --workers 2 --overlay 00000
     """
@@ -63,14 +63,14 @@ def command(
         table = detect_session(sess.root, options, workers=workers, resume=resume,
                                progress=lambda done, total: progress(stage, done, total))
     n_frames = sum(len(sess.image_paths("scan", cam)) for cam in sess.camera_names("scan"))
-    n_with = len(set(zip(table.column("camera").to_pylist(), table.column("frame").to_pylist())))
-    typer.echo(f"{len(table)} candidates in {n_frames} camera frames ({n_with} with candidates) "
-               f"-> {sess.traces_path}")
     for line in colour_mismatches(sess.root, options, table):
         typer.echo(f"warning: {line}", err=True)
     if not len(table):
         raise InputError(f"{sess.root / 'scan'}: no {options.color} laser {options.mode} in any of {n_frames} "
-                         "camera frames")
+                         f"camera frames; {sess.traces_path.name} not written")
+    n_with = len(set(zip(table.column("camera").to_pylist(), table.column("frame").to_pylist())))
+    typer.echo(f"{len(table)} candidates in {n_frames} camera frames ({n_with} with candidates) "
+               f"-> {sess.traces_path}")
     if overlay is not None:
         for path in write_overlays(sess, overlay, table):
             typer.echo(f"overlay: {path}")

@@ -3,7 +3,7 @@
 Frames are independent, so they are split into chunks and handed to a
 :class:`concurrent.futures.ProcessPoolExecutor` (workers read their own images: only file names
 and result tables cross process boundaries). ``traces.parquet`` is rewritten atomically every
-``checkpoint_s`` seconds and at the end, with the list of processed ``(camera, frame)`` pairs in
+``checkpoint_s`` seconds and at the end (once some frame has a candidate), with the list of processed ``(camera, frame)`` pairs in
 its metadata; ``resume=True`` skips those, including frames that had no candidate.
 
 Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
@@ -164,6 +164,7 @@ def detect_session(
     -------
     pyarrow.Table
         All rows written, ordered by camera (session order), frame (natural order), line, rank.
+        When no frame has a candidate it is empty and nothing is written.
 
     Raises
     ------
@@ -301,17 +302,19 @@ def _run_job(job: _Job):
 
 
 def _write(session: Session, cameras: list[str], tables: list[pa.Table], finished, options) -> pa.Table:
-    """Concatenate, order canonically and write ``traces.parquet`` atomically."""
+    """Concatenate, order canonically and write ``traces.parquet`` atomically; while no frame has a
+    candidate nothing is written (an earlier file stays as it was)."""
     table = pa.concat_tables(tables)
-    if len(table):
-        cam_rank = {c: i for i, c in enumerate(cameras)}
-        frames = table.column("frame").to_pylist()
-        stems = sorted(set(frames), key=natural_key)
-        frame_rank = {s: i for i, s in enumerate(stems)}
-        order = np.lexsort((table.column("rank").to_numpy(), table.column("line").to_numpy(),
-                            np.array([frame_rank[f] for f in frames]),
-                            np.array([cam_rank.get(c, len(cam_rank)) for c in table.column("camera").to_pylist()])))
-        table = table.take(order)
+    if not len(table):
+        return table
+    cam_rank = {c: i for i, c in enumerate(cameras)}
+    frames = table.column("frame").to_pylist()
+    stems = sorted(set(frames), key=natural_key)
+    frame_rank = {s: i for i, s in enumerate(stems)}
+    order = np.lexsort((table.column("rank").to_numpy(), table.column("line").to_numpy(),
+                        np.array([frame_rank[f] for f in frames]),
+                        np.array([cam_rank.get(c, len(cam_rank)) for c in table.column("camera").to_pylist()])))
+    table = table.take(order)
     from scanrig import __version__
 
     meta = {"format_version": 1, "created_by": f"scanrig {__version__}", "options": options.as_dict(),
