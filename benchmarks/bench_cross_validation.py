@@ -1,4 +1,4 @@
-"""Odd/even cross-validation benchmark: does the stated uncertainty predict how two halves differ?
+"""Cross-validation benchmark: does the stated uncertainty predict how independent halves differ?
 
 Run ``python benchmarks/bench_cross_validation.py`` (20 seeds x 10, 20, 40, 80 shots) or
 ``--seeds 3 --shots 10,20`` for a quick look. Simulated corners (no rendering): three cameras
@@ -10,18 +10,20 @@ With ``--caliscope`` it also calibrates the real 4-webcam ChArUco rig of
 ``../shared/data/caliscope-4cam-charuco`` (opencv4, rig views alone) and prints its
 cross-validation and warnings.
 
-For each camera it prints the whitened ratio (``sqrt(chi2 / dof)`` of the halves' difference
-against ``Sigma_odd + Sigma_even``; 1 when the sigmas are right) and, for comparison, the plain
-ratio of the RMS pixel differences, measured / predicted, which one or two directions (the
-principal point) dominate. The acceptance of the cross-validation is the whitened ratio within
-0.5-2 on every seed and shot count, median near 1. When the sigmas are right, ``ratio² dof`` is
-chi-square over ``dof`` directions: about 1 % of the ratios fall below 0.5 at 9 directions by
-chance alone and 4e-5 above 2, so the summary prints how many chance puts outside 0.5-2 and the
-smallest chi-square tail probability of all the checks. Whether those tail probabilities are
-uniform, as they are when the sigmas are right, it judges by a Kolmogorov-Smirnov test per camera
-(the three cameras of a session share its shots, so their ratios are correlated) and by the
-counts below 1e-2 and 1e-3 against their expectation. ``--first-seed 20 --seeds 420 --shots 20``
-draws fresh sessions for that: the first 20 seeds are those the acceptance table was read from.
+For each camera it prints the whitened ratio pooled over the three splits of the shots into
+halves (``sqrt(sum chi2 / sum dof)``, each split's halves' difference whitened by ``Sigma_A +
+Sigma_B``; 1 when the sigmas are right), the odd/even split's own whitened ratio, and, for
+comparison, the plain ratio of the pooled RMS pixel differences, measured / predicted, which one or
+two directions (the principal point) dominate. The acceptance of the cross-validation is the pooled
+ratio within 0.5-2 on every seed and shot count, median near 1. When the sigmas are right,
+``ratio² dof`` is chi-square over ``dof`` directions: for the odd/even split alone about 1 % of
+the ratios fall below 0.5 at 9 directions by chance, for the pooled ratio (~27 directions) 1e-6, so
+the summary prints how many chance puts outside 0.5-2 and the smallest chi-square tail probability
+of all the pooled checks. Whether those tail probabilities are uniform, as they are when the sigmas
+are right and the splits independent, it judges by a Kolmogorov-Smirnov test per camera (the three
+cameras of a session share its shots, so their ratios are correlated) and by the counts below 1e-2
+and 1e-3 against their expectation. ``--first-seed 20 --seeds 420 --shots 20`` draws fresh sessions
+for that: the first 20 seeds are those the acceptance table was read from.
 """
 
 from __future__ import annotations
@@ -56,8 +58,9 @@ def main() -> None:
     target = cube()
     with open("/proc/loadavg") as f:
         print(f"load: {f.read().strip()}")
-    print("shots seed  time | per camera: whitened ratio (dof), RMS measured / predicted px = plain ratio")
-    checks = {}       # shots -> [(whitened ratio, dof, plain ratio, seed, camera)]
+    print("shots seed  time | per camera: pooled whitened ratio (dof), odd/even whitened ratio (dof), "
+          "RMS measured / predicted px = plain ratio")
+    checks = {}       # shots -> [(pooled ratio, dof, plain ratio, seed, camera, odd/even ratio, dof)]
     for n_shots in (int(s) for s in args.shots.split(",")):
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             rng = np.random.default_rng(seed)
@@ -75,17 +78,19 @@ def main() -> None:
                 if r is None:
                     parts.append(f"{name}: no common area")
                     continue
-                checks.setdefault(n_shots, []).append((r.ratio, r.dof, r.measured_px / r.predicted_px, seed, name))
-                parts.append(f"{name}: {r.ratio:.2f} ({r.dof}), {r.measured_px:.3f}/{r.predicted_px:.3f} px "
-                             f"= {r.measured_px / r.predicted_px:.2f}")
+                odd_even = cv.splits.get("odd/even", {}).get(name)
+                oe = (odd_even.ratio, odd_even.dof) if odd_even is not None else (np.nan, 0)
+                checks.setdefault(n_shots, []).append((r.ratio, r.dof, r.measured_px / r.predicted_px, seed, name) + oe)
+                parts.append(f"{name}: {r.ratio:.2f} ({r.dof}), {oe[0]:.2f} ({oe[1]}), "
+                             f"{r.measured_px:.3f}/{r.predicted_px:.3f} px = {r.measured_px / r.predicted_px:.2f}")
             print(f"{n_shots:5d} {seed:4d} {elapsed:5.1f}s | " + "; ".join(parts), flush=True)
-    print("\nshots | whitened ratio: median [min, max], outside 0.5-2 (by chance) | plain ratio: median [min, max], "
-          "outside 0.5-2 | cameras")
+    print("\nshots | pooled whitened ratio: median [min, max], outside 0.5-2 (by chance) | odd/even alone: the same | "
+          "plain ratio: median [min, max], outside 0.5-2 | cameras")
     for n_shots, rows in checks.items():
         print(_summary_row(f"{n_shots:5d}", rows))
     every = [row for rows in checks.values() for row in rows]
     print(_summary_row("  all", every))
-    p, (ratio, dof, _, seed, name), shots = min(
+    p, (ratio, dof, _, seed, name, *_), shots = min(
         (chi2.sf(row[0] ** 2 * row[1], row[1]), row, n) for n, rows in checks.items() for row in rows)
     print(f"smallest chi-square tail probability: {p:.1e} ({shots} shots, seed {seed}, {name}: ratio {ratio:.2f} "
           f"over {dof} directions)")
@@ -93,15 +98,20 @@ def main() -> None:
 
 
 def _summary_row(label: str, rows: list) -> str:
-    """One line of the summary table over ``(whitened, dof, plain, seed, camera)`` rows.
+    """One line of the summary table over ``(pooled, dof, plain, seed, camera, odd/even, dof)`` rows."""
+    p = np.array([row[2] for row in rows])
+    return (f"{label} | {_whitened_summary([row[0] for row in rows], [row[1] for row in rows])} | "
+            f"{_whitened_summary([row[5] for row in rows], [row[6] for row in rows])} | "
+            f"{np.median(p):.2f} [{p.min():.2f}, {p.max():.2f}], {_outside(p)} | {len(p)}")
 
-    "By chance": the number of whitened ratios expected outside 0.5-2 when the sigmas are right,
-    ``ratio² dof`` being chi-square over ``dof`` directions (below 0.5 about 1 % at 9 directions).
-    """
-    w, dof, p = (np.array([row[k] for row in rows]) for k in range(3))
+
+def _whitened_summary(ratios: list, dofs: list) -> str:
+    """Median [min, max] of whitened ratios, how many lie outside 0.5-2 and, in brackets, how many
+    chance puts there when the sigmas are right (``ratio² dof`` chi-square over ``dof`` directions)."""
+    w, dof = np.array(ratios), np.array(dofs)
+    w, dof = w[dof > 0], dof[dof > 0]
     chance = np.sum(chi2.cdf(0.25 * dof, dof) + chi2.sf(4.0 * dof, dof))
-    return (f"{label} | {np.median(w):.2f} [{w.min():.2f}, {w.max():.2f}], {_outside(w)} ({chance:.1f}) | "
-            f"{np.median(p):.2f} [{p.min():.2f}, {p.max():.2f}], {_outside(p)} | {len(w)}")
+    return f"{np.median(w):.2f} [{w.min():.2f}, {w.max():.2f}], {_outside(w)} ({chance:.2g})"
 
 
 def _tail_summary(rows: list) -> str:
@@ -128,9 +138,12 @@ def caliscope() -> None:
 
     result = calibrate(caliscope_observations(), charuco((4, 5), 0.054, 0.0405, "DICT_4X4_1000"), "opencv4")
     print("caliscope-4cam-charuco, opencv4, rig views alone:")
-    for name, r in result.cross_validation.cameras.items():
-        print(f"  {name}: whitened ratio {r.ratio:.2f} ({r.dof}), {r.measured_px:.1f}/{r.predicted_px:.1f} px"
-              if r else f"  {name}: no common area")
+    cv = result.cross_validation
+    for name, r in cv.cameras.items():
+        splits = ", ".join(f"{split} {c[name].ratio:.2f} ({c[name].dof})" for split, c in cv.splits.items()
+                           if c[name] is not None)
+        print(f"  {name}: pooled whitened ratio {r.ratio:.2f} ({r.dof}), {r.measured_px:.1f}/{r.predicted_px:.1f} px; "
+              f"per split: {splits}" if r else f"  {name}: no common area")
     print(f"  {len(result.warnings)} warning lines:")
     for line in result.warnings:
         print(f"  WARNING: {line}")

@@ -1,9 +1,11 @@
-"""Odd/even cross-validation: do two independent halves of the views differ as their σ says?
+"""Cross-validation: do independent halves of the views differ as their σ says?
 
-The odd and the even shots are calibrated apart (:func:`scanrig.calibration.pipeline.calibrate`
-solves them); this module compares the two solutions and predicts their difference from *their
-own* covariances. Since the halves share no observation, their errors are independent and the
-covariance of the difference is ``Σ_odd + Σ_even`` propagated to pixels.
+The shots are split into two halves three ways (:data:`SPLITS`: odd/even and two more
+interleaved patterns), and the two halves of each split are calibrated apart
+(:func:`scanrig.calibration.pipeline.calibrate` solves them); this module compares the two
+solutions of a split and predicts their difference from *their own* covariances. Since the
+halves share no observation, their errors are independent and the covariance of the difference
+is ``Σ_A + Σ_B`` propagated to pixels.
 
 The comparison is gauge-free: each half has its own world frame (the target at its own
 reference shot), so world coordinates cannot be compared. Instead the same 3-D points are fixed
@@ -18,23 +20,28 @@ camera's working distance: where both halves have data, as in use. Outside the h
 polynomial distortion model is an extrapolation and the halves may legitimately disagree by
 far more than any σ computed at the data.
 
-Reported per camera: ``measured_px``, the RMS over those points of the difference between the
-halves' projections; ``predicted_px``, the RMS their covariances predict there
-(``sqrt(mean trace(G_odd Σ_odd G_oddᵀ + G_even Σ_even G_evenᵀ))``, ``G`` the Jacobian of a
-projection with respect to the half's parameters, each half's in its own world frame); and
-``ratio``, the difference in units of its predicted σ: the pixel differences whitened by that
-covariance, ``sqrt(χ² / dof)`` over its ``dof`` independent directions. The plain
+Reported per camera and split: ``measured_px``, the RMS over those points of the difference
+between the halves' projections; ``predicted_px``, the RMS their covariances predict there
+(``sqrt(mean trace(G_A Σ_A G_Aᵀ + G_B Σ_B G_Bᵀ))``, ``G`` the Jacobian of a projection with
+respect to the half's parameters, each half's in its own world frame); and ``ratio``, the
+difference in units of its predicted σ: the pixel differences whitened by that covariance,
+``sqrt(χ² / dof)`` over its ``dof`` independent directions. The plain
 ``measured_px / predicted_px`` is a poor judge: one or two directions (the principal point)
 carry most of the predicted variance, so it scatters 0.1-2.8 over clean simulated sessions even
 when the σ are right, whereas ``ratio`` averages 7-12 directions: ``ratio² dof`` is then
-chi-square over ``dof`` directions. A ``ratio`` above
-:data:`RATIO_WARN` means the stated uncertainty is too small, and
-:func:`cross_validation_warnings` says so in one line per camera.
+chi-square over ``dof`` directions.
+
+One split's ``χ²`` still has few directions (below 0.5 by chance for ~1 % of cameras at 9
+directions), so the splits are pooled (:func:`combine_splits`): the three splits' contrasts are
+orthogonal over every block of 4 shots, so with shots of similar information their differences
+are nearly independent and ``sqrt(Σ χ² / Σ dof)`` is chi-square over about three times the
+directions. A pooled ``ratio`` above :data:`RATIO_WARN` means the stated uncertainty is too
+small, and :func:`cross_validation_warnings` says so in one line per camera.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -46,6 +53,11 @@ from scanrig.geometry.transform import skew
 #: ``dof`` directions divided by ``dof``; with 4 directions it exceeds 3² = 9 with probability
 #: 3e-7, with 9 directions 1e-13: a warning means a real excess.
 RATIO_WARN = 3.0
+#: The splits of the shots into two halves: the half (0 or 1) of each shot index modulo 4.
+#: As ±1 contrasts these are Walsh (Hadamard) patterns, orthogonal to each other over every
+#: block of 4 shots (the third is the product of the first two), and each half of each split
+#: has every other shot of the session's order: both halves span the whole sequence.
+SPLITS = {"odd/even": (0, 1, 0, 1), "pairs": (0, 0, 1, 1), "staggered pairs": (0, 1, 1, 0)}
 #: Pixel-space directions whose singular value is below this fraction of the largest are left
 #: out of the whitened ratio: they carry less than 1e-6 of the largest variance, where the
 #: difference would be second-order terms and round-off rather than data. (The two halves'
@@ -65,28 +77,30 @@ CAUSES = ("systematic corner error (detector, blur, a target whose printed size 
 
 @dataclass(frozen=True)
 class CameraCrossValidation:
-    """The comparison of one camera's two half solutions.
+    """The comparison of one camera's half solutions (of one split, or pooled over the splits).
 
     Attributes
     ----------
     measured_px : float
-        RMS difference of the halves' projections over the common points, pixels.
+        RMS difference of the halves' projections over the common points, pixels (pooled: over
+        every split's points).
     predicted_px : float
         RMS difference their covariances predict there, pixels.
     max_px : float
         Largest difference over the common points, pixels.
     n_points : int
-        Grid points inside both halves' corner hulls.
+        Grid points inside both halves' corner hulls (pooled: summed over the splits).
     ratio : float
         The difference in units of its predicted σ: ``sqrt(χ² / dof)``, χ² of the pixel
         differences whitened by their predicted covariance over its ``dof`` independent
         directions. Near 1 when the σ are right (``ratio² dof`` is then chi-square over ``dof``
         directions). (``measured_px / predicted_px`` is dominated by the one or two largest
         directions, typically the principal point, so it scatters 0.1-2.8 between clean
-        sessions.) NaN when nothing is free.
+        sessions.) Pooled: ``sqrt(Σ χ² / Σ dof)`` over the splits. NaN when nothing is free.
     dof : int
         Independent directions the ratio is taken over (free intrinsics plus 6 for the pose
-        relative to the reference camera, less those the image cannot see).
+        relative to the reference camera, less those the image cannot see; pooled: summed over
+        the splits).
     """
 
     measured_px: float
@@ -99,19 +113,69 @@ class CameraCrossValidation:
 
 @dataclass(frozen=True)
 class CrossValidation:
-    """Odd/even cross-validation of a calibration.
+    """Cross-validation of a calibration: its halves' differences per camera.
 
     Attributes
     ----------
     cameras : dict
         ``camera -> CameraCrossValidation``, or None where the halves' corners have fewer than
-        :data:`MIN_COMMON_POINTS` grid points in common.
+        :data:`MIN_COMMON_POINTS` grid points in common (in every split).
     reference_camera : str
         Camera whose frame holds the compared 3-D points.
+    splits : dict
+        Pooled over splits (:func:`combine_splits`): ``split name -> {camera ->
+        CameraCrossValidation or None}``, each split's own figures, for the splits whose halves
+        could be solved (in :data:`SPLITS` order). Empty for one split's comparison.
     """
 
     cameras: dict
     reference_camera: str
+    splits: dict = field(default_factory=dict)
+
+
+def split_halves(n_shots: int, pattern: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """The shot indices of the two halves of a split.
+
+    Parameters
+    ----------
+    n_shots : int
+    pattern : tuple of 4 int
+        The half (0 or 1) of each shot index modulo 4 (a value of :data:`SPLITS`).
+
+    Returns
+    -------
+    half0, half1 : ndarray of int
+    """
+    half = np.asarray(pattern)[np.arange(n_shots) % 4]
+    return np.flatnonzero(half == 0), np.flatnonzero(half == 1)
+
+
+def combine_splits(per_split: dict) -> CrossValidation:
+    """One check per camera from every split's comparison: χ² and dof summed, RMS over all points.
+
+    Parameters
+    ----------
+    per_split : dict
+        ``split name -> CrossValidation`` (:func:`compare_halves`), at least one, same cameras.
+    """
+    first = next(iter(per_split.values()))
+    cameras = {name: _pool([cv.cameras[name] for cv in per_split.values() if cv.cameras[name] is not None])
+               for name in first.cameras}
+    return CrossValidation(cameras, first.reference_camera,
+                           {split: cv.cameras for split, cv in per_split.items()})
+
+
+def _pool(checks: list) -> CameraCrossValidation | None:
+    """Several splits' checks of one camera as one: ``sqrt(Σ χ² / Σ dof)``; None when there are none."""
+    if not checks:
+        return None
+    n = np.array([c.n_points for c in checks])
+    dof = sum(c.dof for c in checks)
+    chi2 = sum(c.ratio ** 2 * c.dof for c in checks if c.dof)
+    return CameraCrossValidation(float(np.sqrt(np.sum(n * [c.measured_px ** 2 for c in checks]) / n.sum())),
+                                 float(np.sqrt(np.sum(n * [c.predicted_px ** 2 for c in checks]) / n.sum())),
+                                 max(c.max_px for c in checks), int(n.sum()),
+                                 float(np.sqrt(chi2 / dof)) if dof else float("nan"), dof)
 
 
 def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties: list[Uncertainty],
@@ -123,7 +187,7 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
     full : BundleResult
         Solution from all views: defines the compared points.
     halves : list of two BundleResult
-        Solutions from the odd and the even shots (same cameras, same order).
+        Solutions from the two halves of the shots (same cameras, same order).
     uncertainties : list of two Uncertainty
         Their covariances (:func:`scanrig.calibration.uncertainty.covariance`).
     working_distance_m : dict
@@ -181,10 +245,10 @@ def _judge(diff_px: np.ndarray, modes: np.ndarray) -> CameraCrossValidation:
     Parameters
     ----------
     diff_px : ndarray of shape (n, 2)
-        Even minus odd projection of each common point, pixels.
+        Second minus first half's projection of each common point, pixels.
     modes : ndarray of shape (2n, m)
         Both halves' :func:`_sigma_modes` side by side: the difference's covariance is
-        ``modes modesᵀ`` (``Σ_odd + Σ_even`` in pixels).
+        ``modes modesᵀ`` (``Σ_A + Σ_B`` in pixels).
     """
     n = len(diff_px)
     d = diff_px.ravel()
@@ -260,8 +324,25 @@ def cross_validation_warnings(cv: CrossValidation | None) -> list[str]:
     """One line per camera whose ``ratio`` exceeds :data:`RATIO_WARN`."""
     if cv is None:
         return []
-    return [f"{name}: the odd and even views differ by {r.ratio:.1f} sigma of their stated uncertainty "
+    return [f"{name}: {_compared(cv, name)} by {r.ratio:.1f} sigma of their stated uncertainty{_pooled(cv, name)} "
             f"(RMS {r.measured_px:.3g} px, predicted {r.predicted_px:.3g} px): its sigmas are too small; likely "
             "systematic corner error, board flex, too few or too similar views, or too many distortion terms "
             "(what to do: calibration_report/summary.txt)"
             for name, r in cv.cameras.items() if r is not None and r.ratio > RATIO_WARN]
+
+
+def _used_splits(cv: CrossValidation, camera: str) -> list[str]:
+    """The splits that judged a camera (odd/even alone for one split's comparison)."""
+    return [split for split, cameras in cv.splits.items() if cameras[camera] is not None] or ["odd/even"]
+
+
+def _compared(cv: CrossValidation, camera: str) -> str:
+    """The subject of a camera's warning."""
+    used = _used_splits(cv, camera)
+    return "the odd and even views differ" if used[0] == "odd/even" else "interleaved halves of the views differ"
+
+
+def _pooled(cv: CrossValidation, camera: str) -> str:
+    """How many more splits a camera's ratio pools, for its warning."""
+    more = len(_used_splits(cv, camera)) - 1
+    return f", pooled with {more} more interleaved split{'s' if more > 1 else ''} into halves" if more else ""

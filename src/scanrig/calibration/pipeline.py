@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
-from scanrig.calibration.cross_validation import CrossValidation, compare_halves, cross_validation_warnings
+from scanrig.calibration.cross_validation import (SPLITS, CrossValidation, combine_splits, compare_halves,
+                                                  cross_validation_warnings, split_halves)
 from scanrig.calibration.flex_check import flex_warning
 from scanrig.calibration.init import MIN_POINTS_PER_PLANE, Initialisation, initialise
 from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_constraints, undetermined_intrinsics,
@@ -31,7 +32,7 @@ from scanrig.targets import Target
 CALIBRATION_MODELS = ("opencv4", "opencv5", "opencv8")
 #: Fewest views of one board (planes) per camera: two homographies fix fx, fy, cx, cy (zero skew).
 MIN_PLANES_PER_CAMERA = 2
-#: Fewest shots in each half for the odd/even cross-validation.
+#: Fewest shots in each half of a cross-validation split.
 MIN_SHOTS_PER_HALF = 3
 REPORT_DIR = "calibration_report"
 #: :func:`locate_target`: corners beyond this many robust sigmas of reprojection error (and
@@ -103,7 +104,9 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     fixed_params : dict, optional
         ``camera -> parameter names held at their initial value``.
     cross_validate : bool
-        Also run the odd/even split (when each half has :data:`MIN_SHOTS_PER_HALF` shots).
+        Also cross-validate: calibrate the halves of each split of the shots
+        (:data:`~scanrig.calibration.cross_validation.SPLITS`) apart and compare them (the splits
+        whose halves have :data:`MIN_SHOTS_PER_HALF` shots and can be solved).
     known_intrinsics : dict, optional
         ``camera -> KnownIntrinsics`` (:mod:`scanrig.calibration.intrinsics_prior`): these
         cameras keep their model and intrinsics, held fixed or, with ``refine_intrinsics``,
@@ -148,7 +151,7 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     result = CalibrationResult(rig, bundle, unc, init, target, distance, sigma_map, warnings=warnings,
                                known_intrinsics=known)
     if cross_validate:
-        result.cross_validation = _cross_validate(obs, target, models, fixed, result, priors)
+        result.cross_validation = _cross_validate(result, fixed, priors)
         result.warnings += cross_validation_warnings(result.cross_validation)
     return result
 
@@ -176,21 +179,43 @@ def _working_distances(bundle: BundleResult, target: Target) -> dict:
     return out
 
 
-def _cross_validate(obs, target, models, fixed_params, full: CalibrationResult, priors=None) -> CrossValidation | None:
-    """Calibrate the odd and the even shots apart and compare them (None when a half cannot be solved)."""
-    halves, uncertainties = [], []
-    for parity in (0, 1):
-        shots = np.flatnonzero(np.arange(len(obs.shot_names)) % 2 == parity)
-        sub = obs.subset(np.isin(obs.shot, shots))
-        if len(np.unique(sub.shot)) < MIN_SHOTS_PER_HALF:
-            return None
-        try:
-            check_observations(sub, target)
-            halves.append(_solve(sub, target, models, fixed_params, priors, full.known_intrinsics)[1])
-        except InputError:
-            return None
-        uncertainties.append(covariance(halves[-1]))
-    return compare_halves(full.bundle, halves, uncertainties, full.working_distance_m)
+def _cross_validate(full: CalibrationResult, fixed_params, priors=None) -> CrossValidation | None:
+    """Calibrate the two halves of each split of the shots apart and compare them, pooled over the
+    splits (None when no split's halves can be solved)."""
+    per_split = {}
+    for name, pattern in SPLITS.items():
+        halves = [_solve_half(full, shots, fixed_params, priors)
+                  for shots in split_halves(len(full.bundle.obs.shot_names), pattern)]
+        if all(h is not None for h in halves):
+            per_split[name] = compare_halves(full.bundle, halves, [covariance(h) for h in halves],
+                                             full.working_distance_m)
+    return combine_splits(per_split) if per_split else None
+
+
+def _solve_half(full: CalibrationResult, shots: np.ndarray, fixed_params, priors=None) -> BundleResult | None:
+    """Bundle adjustment of some shots alone, or None when fewer than :data:`MIN_SHOTS_PER_HALF`
+    of them were solved in the full calibration or they cannot be solved alone.
+
+    The half keeps the corners the full solution kept (its outlier rejection, from all views, is
+    better informed than one from half of them) and solves plain least squares on them, which is
+    what the robust solve ends with too. It starts from the full solution (its cameras and these
+    shots' poses), about one σ from the half's own minimum, so it converges in a few iterations
+    without an initialisation; the world frame is the full solution's, held by the half's shot
+    with the most corners.
+    """
+    obs, world_from_target = full.bundle.obs, full.bundle.state.world_from_target
+    shots = np.array([s for s in shots if world_from_target[s] is not None], dtype=int)
+    if len(shots) < MIN_SHOTS_PER_HALF:
+        return None
+    sub = obs.subset(np.isin(obs.shot, shots) & full.bundle.inliers)
+    start = [pose if s in shots else None for s, pose in enumerate(world_from_target)]
+    reference = int(np.argmax(np.bincount(sub.shot, minlength=len(obs.shot_names))))
+    try:
+        check_observations(sub, full.target, tuple(full.known_intrinsics))
+        return bundle_adjust(sub, full.target, full.bundle.state.cameras, start, reference, fixed_params,
+                             robust=False, priors=priors)
+    except InputError:
+        return None
 
 
 def detect_session(session, target: Target, cameras: list[str] | None = None, progress=None,
