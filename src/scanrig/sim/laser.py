@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -38,6 +39,8 @@ _MAX_DENSE_BEAMS = 8
 _MAX_NEIGHBOUR_BEAMS = 24
 #: Ratio of the largest to the smallest reach of a class of beamlets (GaussianBeams.may_light).
 _REACH_CLASS_RATIO = 1.25
+#: Points per block in GaussianBeams.evaluate (its (point, beam) scratch arrays stay in the CPU cache).
+_EVAL_BLOCK = 8192
 #: Fan samples cast per stripe frame (render windows, secondary beamlets) and written to truth.
 N_FAN_SAMPLES = 2048
 N_FAN_TRUTH = 512
@@ -143,15 +146,38 @@ class GaussianBeams:
     landing: np.ndarray | None = None
     reach_m: np.ndarray | None = None
 
+    @cached_property
+    def _landing_tree(self):
+        """k-d tree of the landings (built once per beam set: a trace serves every camera)."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.landing)
+
+    @cached_property
+    def _reach_classes(self) -> list:
+        """``(tree, largest reach)`` per class of beamlets of similar reach (:meth:`may_light`).
+
+        Beamlets are grouped by reach in classes of ratio :data:`_REACH_CLASS_RATIO`; each class
+        gets a k-d tree of its landings, built once per beam set.
+        """
+        from scipy.spatial import cKDTree
+
+        reach_class = np.floor(np.log(self.reach_m / self.reach_m.min()) / np.log(_REACH_CLASS_RATIO))
+        return [(cKDTree(self.landing[reach_class == c]), float(self.reach_m[reach_class == c].max()))
+                for c in np.unique(reach_class)]
+
     def _candidates(self, x: np.ndarray):
-        """Beam indices ``(N, k)`` worth evaluating at each point, with a validity mask."""
+        """Beam indices worth evaluating at points ``x`` (N, 3): ``(N, k)`` ints and a validity mask.
+
+        Few beams (or the laser head's): all of them. Beamlets evaluated near their landings:
+        the ``k`` = :data:`_MAX_NEIGHBOUR_BEAMS` landings nearest each point within the largest
+        reach, valid where within their own reach.
+        """
         m = len(self.power_W)
         if self.landing is None or m <= _MAX_DENSE_BEAMS:
             return np.broadcast_to(np.arange(m), (len(x), m)), np.ones((len(x), m), dtype=bool)
-        from scipy.spatial import cKDTree
-
         k = min(m, _MAX_NEIGHBOUR_BEAMS)
-        dist, idx = cKDTree(self.landing).query(x, k=k, distance_upper_bound=float(self.reach_m.max()))
+        dist, idx = self._landing_tree.query(x, k=k, distance_upper_bound=float(self.reach_m.max()))
         valid = idx < m
         idx = np.where(valid, idx, 0)
         return idx, valid & (dist <= self.reach_m[idx])
@@ -185,18 +211,13 @@ class GaussianBeams:
             # the radius is convex in z: its largest value within the reach is at an end
             w = np.maximum(self.radius(z - r), self.radius(z + r))
             return ((z + r > 0) & (rho - r <= FOOTPRINT_RADII * w)).any(axis=1)
-        from scipy.spatial import cKDTree
-
         # A beamlet lights a point within the reach only if it lands within its own reach plus
-        # the point's. Beamlets are grouped by reach (classes of ratio _REACH_CLASS_RATIO); in
-        # each class the nearest landing is tested against the class's largest reach.
+        # the point's. In each class of beamlets of similar reach (_reach_classes) the nearest
+        # landing is tested against the class's largest reach.
         may = np.zeros(len(x), dtype=bool)
-        reach_class = np.floor(np.log(self.reach_m / self.reach_m.min()) / np.log(_REACH_CLASS_RATIO))
-        for c in np.unique(reach_class):
-            members = reach_class == c
-            top_m = float(self.reach_m[members].max())
+        for tree, top_m in self._reach_classes:
             open_ = np.flatnonzero(~may)
-            dist, _ = cKDTree(self.landing[members]).query(x[open_], distance_upper_bound=top_m + reach_m.max(initial=0.0))
+            dist, _ = tree.query(x[open_], distance_upper_bound=top_m + reach_m.max(initial=0.0))
             may[open_] = dist - reach_m[open_] <= top_m
         return may
 
@@ -218,37 +239,39 @@ class GaussianBeams:
             plane, or the emitting surface's tangent plane): the shadow test length.
         """
         n = len(x)
-        idx, valid = self._candidates(x)
         total = np.zeros(n)
-        arg = idx[:, 0].copy()          # where no beam reaches, the first candidate (no light)
-        path = np.zeros(n)
-        reached = np.flatnonzero(valid.any(axis=1))
-        chunk = max(1, (1 << 22) // idx.shape[1])
-        for s in range(0, len(reached), chunk):
-            r = reached[s:s + chunk]
-            b = idx[r]                                                    # (n, k) beam indices
-            # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
-            rows, cols = np.nonzero(valid[r])
-            pair = b[rows, cols]
-            rel = x[r[rows]] - self.origin[pair]                          # (p, 3)
-            z_pair = np.einsum("ij,ij->i", rel, self.direction[pair])
-            rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
-            w = self.radius(z_pair, pair)
-            inten_pair = 2 * self.power_W[pair] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
-            inten_pair[z_pair <= 0] = 0.0
-            inten = np.zeros(b.shape)
-            inten[rows, cols] = inten_pair
-            z = np.zeros(b.shape)
-            z[rows, cols] = z_pair
-            total[r] = inten.sum(axis=1)
-            a = inten.argmax(axis=1)
-            at = np.arange(len(a))
-            arg[r] = b[at, a]
-            path[r] = z[at, a]
+        arg = np.empty(n, dtype=np.int64)
+        path = np.empty(n)
+        # blocks of points whose (point, beam) scratch arrays stay in the CPU cache
+        for s in range(0, n, _EVAL_BLOCK):
+            e = min(n, s + _EVAL_BLOCK)
+            total[s:e], arg[s:e], path[s:e] = self._evaluate_block(x[s:e])
         if self.emitter_normal is not None:
             n_e = self.emitter_normal[arg]
             path = np.einsum("ij,ij->i", x - self.origin[arg], n_e) / np.einsum("ij,ij->i", self.direction[arg], n_e)
         return total, self.direction[arg], path
+
+    def _evaluate_block(self, x: np.ndarray):
+        """:meth:`evaluate` at points ``x`` (n, 3): summed irradiance (n,), the dominant beam (n,)
+        and the distance along its axis (n,). Where no beam reaches: zero, the first candidate, zero.
+        """
+        idx, valid = self._candidates(x)                                  # (n, k)
+        # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
+        rows, cols = np.nonzero(valid)
+        pair = idx[rows, cols]
+        rel = np.take(x, rows, axis=0) - np.take(self.origin, pair, axis=0)     # (p, 3)
+        z_pair = np.einsum("ij,ij->i", rel, np.take(self.direction, pair, axis=0))
+        rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
+        w = self.radius(z_pair, pair)
+        inten_pair = 2 * self.power_W[pair] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
+        inten_pair[z_pair <= 0] = 0.0
+        inten = np.zeros(idx.shape)
+        inten[rows, cols] = inten_pair
+        z = np.zeros(idx.shape)
+        z[rows, cols] = z_pair
+        dominant = inten.argmax(axis=1)[:, None]
+        return (inten.sum(axis=1), np.take_along_axis(idx, dominant, axis=1)[:, 0],
+                np.take_along_axis(z, dominant, axis=1)[:, 0])
 
 
 @dataclass(frozen=True)
