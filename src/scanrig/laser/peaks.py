@@ -189,7 +189,8 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
         ``"2d"``: maxima over the 8-neighbourhood (spots). ``"rows"``: maxima along each row
         (a stripe crossing the rows); ``"columns"``: along each column.
     excess : array, optional
-        Result of :func:`prescan` (computed when omitted).
+        Result of :func:`prescan` (computed when omitted), or any array positive (True) on the
+        blocks to search from.
     k_seed, k_detect : float
         Pre-scan and detection thresholds, in noise σ.
 
@@ -203,7 +204,7 @@ def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None
     sig = li.signal
     if excess is None:
         excess = prescan(li, k_seed)
-    flagged = (excess > 0).view(np.uint8)
+    flagged = (excess if excess.dtype == bool else excess > 0).view(np.uint8)
     if not flagged.any():
         return _empty()
     flagged = cv2.dilate(flagged, np.ones((3, 3), np.uint8))
