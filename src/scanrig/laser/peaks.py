@@ -112,14 +112,17 @@ _WORTH_SCANNING = 0.1
 
 
 def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray, np.ndarray]:
-    """Blocks where a scan along rows, and where a scan along columns, may cross a stripe steeply.
+    """The blocks to search from along rows, and along columns: those of positive excess where a
+    scan in that direction may cross a stripe steeply.
 
     A coarse structure tensor of the pre-scan: squared differences of the positive block excess
     across columns and across rows, summed over ``tile_blocks`` × ``tile_blocks`` blocks. A stripe
     that runs along columns changes across columns and hardly across rows there, so a column scan
     would follow it lengthwise: where one sum is below ``_WORTH_SCANNING`` of the other, only the
     other direction runs (a clean straight stripe is scanned once). Texture and curves make both
-    sums comparable: both run, and the candidates decide (:func:`direction_map`).
+    sums comparable: both run, and the candidates decide (:func:`direction_map`). The sums are
+    needed at the blocks of positive excess alone: read there from integral images (OpenCV's box
+    filter of the whole block map costs twice as much).
 
     Parameters
     ----------
@@ -131,9 +134,8 @@ def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray
     Returns
     -------
     rows, columns : (hb, wb) bool arrays
+        False wherever the excess is not positive.
     """
-    import cv2
-
     e = np.maximum(excess, 0.0, dtype=np.float32)
     across_cols, across_rows = np.empty_like(e), np.empty_like(e)  # squared differences, 0 at the end
     np.subtract(e[:, 1:], e[:, :-1], out=across_cols[:, :-1])
@@ -142,10 +144,27 @@ def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray
     across_rows[-1] = 0.0
     np.square(across_cols, out=across_cols)
     np.square(across_rows, out=across_rows)
-    size = (tile_blocks, tile_blocks)
-    sxx = cv2.boxFilter(across_cols, -1, size, normalize=False)
-    syy = cv2.boxFilter(across_rows, -1, size, normalize=False)
-    return sxx >= _WORTH_SCANNING * syy, syy >= _WORTH_SCANNING * sxx
+    flagged = excess > 0.0
+    at = np.flatnonzero(flagged)  # (NumPy's nonzero of a 2-D mask is ten times slower)
+    sxx, syy = (_window_sums(a, *np.divmod(at, e.shape[1]), tile_blocks // 2) for a in (across_cols, across_rows))
+    rows, columns = np.zeros_like(flagged), np.zeros_like(flagged)
+    rows.ravel()[at] = sxx >= _WORTH_SCANNING * syy
+    columns.ravel()[at] = syy >= _WORTH_SCANNING * sxx
+    return rows, columns
+
+
+def _window_sums(a: np.ndarray, i: np.ndarray, j: np.ndarray, radius: int) -> np.ndarray:
+    """Sums of ``a (H, W)`` over the squares of ``2 radius + 1`` centred on ``(i, j)`` (``(n,)``
+    ints), the image reflected beyond its edges as by OpenCV's box filter (``BORDER_REFLECT_101``),
+    from its float64 integral image: ``(n,)`` float64."""
+    import cv2
+
+    side = 2 * radius + 1
+    total = cv2.integral(cv2.copyMakeBorder(a, radius, radius, radius, radius, cv2.BORDER_REFLECT_101),
+                         sdepth=cv2.CV_64F)
+    corner, down = i * total.shape[1] + j, side * total.shape[1]  # flat indices: one gather per corner
+    total = total.ravel()
+    return total[corner + down + side] - total[corner + side] - total[corner + down] + total[corner]
 
 
 def direction_map(rows_weight: np.ndarray, columns_weight: np.ndarray, tile_blocks: int = 9) -> np.ndarray:

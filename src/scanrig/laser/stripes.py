@@ -152,8 +152,7 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
     """Candidates along rows and along columns, each scanned where it may cross a stripe steeply
     (:func:`~scanrig.laser.peaks.worth_scanning`) and kept where it does
     (:func:`~scanrig.laser.stripe_candidates.crossed_steeply`)."""
-    flagged = excess > 0.0  # the blocks the search starts from, in each direction where it is worth it
-    found = {along: prominent(li, along, blocks & flagged, k_detect, min_separation_px, max_width_px)
+    found = {along: prominent(li, along, blocks, k_detect, min_separation_px, max_width_px)
              for along, blocks in zip(("rows", "columns"), worth_scanning(excess))}
     if min(c.line.size for c in found.values()) == 0:  # candidates along one direction only: the
         return found  # direction map gives every block to it, and all its candidates stay
