@@ -315,7 +315,7 @@ def _maxima_of_frame(box: np.ndarray, flagged: np.ndarray, along: str):
 
 
 def _patches(sig: np.ndarray, bi: np.ndarray, bj: np.ndarray):
-    """The ``_PATCH``-pixel squares around blocks ``(bi, bj)``, float32, candidate-minor
+    """The ``_PATCH``-pixel squares around blocks ``(bi, bj)``, uint16 (8-bit data) or float32, candidate-minor
     ``(_PATCH, _PATCH, n)``; pixels outside the frame repeat the nearest edge pixel.
 
     Returns the patches and the blocks ``bi, bj`` in the patches' order (blocks at the frame's
@@ -350,7 +350,8 @@ def _patches(sig: np.ndarray, bi: np.ndarray, bj: np.ndarray):
         whole = stacks[bi[:n_inside] - 1, left[:n_inside]]
         parts.insert(0, whole.view(sig.dtype).reshape(n_inside, -1))
     patch = parts[0] if len(parts) == 1 else np.concatenate(parts)
-    return cv2.transpose(patch).astype(np.float32).reshape(_PATCH, _PATCH, bi.size), bi, bj
+    work = np.uint16 if sig.dtype == np.uint8 else np.float32  # box sums of bytes: exact in 16 bits
+    return cv2.transpose(patch).astype(work).reshape(_PATCH, _PATCH, bi.size), bi, bj
 
 
 def suppress_2d(u: np.ndarray, v: np.ndarray, score: np.ndarray, radius_px: float) -> np.ndarray:
