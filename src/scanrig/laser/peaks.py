@@ -146,7 +146,8 @@ def worth_scanning(excess: np.ndarray, tile_blocks: int = 9) -> tuple[np.ndarray
     np.square(across_rows, out=across_rows)
     flagged = excess > 0.0
     at = np.flatnonzero(flagged)  # (NumPy's nonzero of a 2-D mask is ten times slower)
-    sxx, syy = (_window_sums(a, *np.divmod(at, e.shape[1]), tile_blocks // 2) for a in (across_cols, across_rows))
+    i, j = np.divmod(at, e.shape[1])
+    sxx, syy = (_window_sums(a, i, j, tile_blocks // 2) for a in (across_cols, across_rows))
     rows, columns = np.zeros_like(flagged), np.zeros_like(flagged)
     rows.ravel()[at] = sxx >= _WORTH_SCANNING * syy
     columns.ravel()[at] = syy >= _WORTH_SCANNING * sxx
@@ -315,8 +316,8 @@ def _maxima_of_frame(box: np.ndarray, flagged: np.ndarray, along: str):
 
 
 def _patches(sig: np.ndarray, bi: np.ndarray, bj: np.ndarray):
-    """The ``_PATCH``-pixel squares around blocks ``(bi, bj)``, uint16 (8-bit data) or float32, candidate-minor
-    ``(_PATCH, _PATCH, n)``; pixels outside the frame repeat the nearest edge pixel.
+    """The ``_PATCH``-pixel squares around blocks ``(bi, bj)``, uint16 (8-bit data) or float32,
+    candidate-minor ``(_PATCH, _PATCH, n)``; pixels outside the frame repeat the nearest edge pixel.
 
     Returns the patches and the blocks ``bi, bj`` in the patches' order (blocks at the frame's
     edge last).
