@@ -75,13 +75,14 @@ class RayCaster:
         self.face_normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
         self.corner_normals = np.concatenate([m.vertex_normals[m.faces] for m in meshes])  # (F, 3, 3)
         self.face_object = np.repeat(np.arange(len(meshes)), [len(m.faces) for m in meshes])
-        # Packed per-face rows, one gather per hit: the plane (unit normal n, offset n·v0) and
-        # the shading data (corner normal 0, its differences to corners 1 and 2, object index).
+        # Packed per-face data, one gather per hit: the plane (unit normal n, offset n·v0), one
+        # face per row, and the shading data (corner normal 0, its differences to corners 1 and
+        # 2, object index), one face per column, so that the hits' shading data are rows (_refine_into).
         offset = np.einsum("ij,ij->i", self.face_normals, self.triangles[:, 0])
         self._plane = np.ascontiguousarray(np.column_stack([self.face_normals, offset]))
         cn = self.corner_normals
-        self._shade = np.ascontiguousarray(np.column_stack(
-            [cn[:, 0], cn[:, 1] - cn[:, 0], cn[:, 2] - cn[:, 0], self.face_object.astype(np.float64)]))
+        self._shade = np.ascontiguousarray(np.vstack(
+            [cn[:, 0].T, (cn[:, 1] - cn[:, 0]).T, (cn[:, 2] - cn[:, 0]).T, self.face_object.astype(np.float64)]))
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(self._scene, self.triangles.astype(np.float32))
 
@@ -166,18 +167,10 @@ class RayCaster:
             h_o = g[:, 3] - (nf @ o if shared else np.einsum("ij,ij->i", nf, o))   # n·(v0 - o)
             denom = np.einsum("ij,ij->i", nf, d)
             tt = np.divide(h_o, denom, out=t[out])
-            np.multiply(tt[:, None], d, out=point[out])
-            point[out] += o
-            flip = np.where(denom > 0, -1.0, 1.0)[:, None]
-            np.multiply(nf, flip, out=normal[out])
-            # Embree's float32 barycentrics are ample for interpolating normals
-            sh = np.take(self._shade, prim, axis=0)
-            ns = shading[out]
-            np.multiply(sh[:, 3:6], u[:, None], out=ns)
-            ns += sh[:, 0:3]
-            ns += sh[:, 6:9] * v[:, None]
-            ns *= flip / np.sqrt(np.einsum("ij,ij->i", ns, ns))[:, None]
-            obj[out] = sh[:, 9]
+            flip = np.where(denom > 0, -1.0, 1.0)
+            sh = np.take(self._shade, prim, axis=1)
+            _refine_into(point[out], normal[out], shading[out], tt, d, o, g, flip, sh, u, v)
+            obj[out] = sh[9]
             m += k
         return idx[:m], Hits(t[:m], point[:m], normal[:m], shading[:m], obj[:m])
 
@@ -214,6 +207,51 @@ class RayCaster:
         if bad is not None:
             prim[bad] = -1
         return prim, res["u"], res["v"]
+
+
+def _refine_into(point, normal, shading, t, d, o, plane, flip, shade, u, v) -> None:
+    """Hit points, normals and shading normals of ``k`` hits, written into ``point``, ``normal``
+    and ``shading``.
+
+    Component by component: an operation between a (k, 3) array and a (k, 1) factor runs numpy's
+    inner loop three values at a time, one on rows of length k runs it once per row (the same
+    values in about two thirds of the time).
+
+    Parameters
+    ----------
+    point, normal, shading : ndarray of shape (k, 3)
+        Outputs: hit points (world metres), the face's unit normal facing the ray, and the unit
+        interpolated normal on the same side.
+    t : ndarray of shape (k,)
+        Distances along the rays, metres.
+    d : ndarray of shape (k, 3)
+        Unit ray directions.
+    o : ndarray of shape (3,) or (k, 3)
+        Ray origins, metres.
+    plane : ndarray of shape (k, 4)
+        The hit faces' unit normal and offset.
+    flip : ndarray of shape (k,)
+        -1 where the ray meets the face from behind its normal, else 1.
+    shade : ndarray of shape (10, k)
+        The hit faces' corner normal 0 and its differences to corners 1 and 2 (three rows each),
+        then the object index.
+    u, v : ndarray of shape (k,), float32
+        Embree's barycentrics (ample for interpolating normals).
+    """
+    u, v = u.astype(np.float64), v.astype(np.float64)
+    interpolated = np.empty((3, len(t)))
+    for c in range(3):
+        np.multiply(t, d[:, c], out=point[:, c])
+        point[:, c] += o[..., c]
+        np.multiply(plane[:, c], flip, out=normal[:, c])
+        row = interpolated[c]
+        np.multiply(shade[3 + c], u, out=row)
+        row += shade[c]
+        row += shade[6 + c] * v
+    shading[...] = interpolated.T
+    scale = flip / np.sqrt(np.einsum("ij,ij->i", shading, shading))
+    for c in range(3):
+        shading[:, c] *= scale
 
 
 def intersect_reference(triangles: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
