@@ -22,6 +22,7 @@ from scanrig.calibration.cross_validation import (
     _projection_jacobian,
     combine_splits,
     compare_halves,
+    cross_validation_warnings,
     split_halves,
 )
 from scanrig.calibration.init import initialise
@@ -256,6 +257,18 @@ def test_pooled_check_sums_chi_square_and_directions():
     assert pooled.predicted_px == pytest.approx(np.sqrt((100 * 1.0 + 300 * 4.0) / 400))
     assert cv.cameras["b"] is None and cv.reference_camera == "a"
     assert cv.splits["odd/even"]["a"] is per_split["odd/even"].cameras["a"]
+
+
+def test_warning_says_which_halves_differ():
+    """One line per camera above RATIO_WARN, naming the splits it pools; none at or below it."""
+    high, low = _check(RATIO_WARN + 0.1, 27, 100), _check(RATIO_WARN, 27, 100)
+    pooled = {"a": high, "b": low}
+    cv = CrossValidation(pooled, "a", {"odd/even": pooled, "pairs": pooled, "staggered pairs": {"a": None, "b": low}})
+    assert [w.split(" (RMS")[0] for w in cross_validation_warnings(cv)] == [
+        f"a: the odd and even views differ by {RATIO_WARN + 0.1:.1f} sigma of their stated uncertainty, pooled with "
+        "1 more interleaved split into halves"]
+    cv = CrossValidation(pooled, "a", {"pairs": pooled})
+    assert cross_validation_warnings(cv)[0].startswith("a: interleaved halves of the views differ by")
 
 
 def test_halves_started_from_the_full_solution_reach_their_own_minimum(session, halves):

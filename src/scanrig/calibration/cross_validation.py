@@ -32,11 +32,13 @@ when the σ are right, whereas ``ratio`` averages 7-12 directions: ``ratio² dof
 chi-square over ``dof`` directions.
 
 One split's ``χ²`` still has few directions (below 0.5 by chance for ~1 % of cameras at 9
-directions), so the splits are pooled (:func:`combine_splits`): the three splits' contrasts are
-orthogonal over every block of 4 shots, so with shots of similar information their differences
-are nearly independent and ``sqrt(Σ χ² / Σ dof)`` is chi-square over about three times the
-directions. A pooled ``ratio`` above :data:`RATIO_WARN` means the stated uncertainty is too
-small, and :func:`cross_validation_warnings` says so in one line per camera.
+directions), so the splits are pooled (:func:`combine_splits`), ``sqrt(Σ χ² / Σ dof)``. The
+three splits' contrasts are orthogonal over every block of 4 shots, so with shots of equal
+information their differences would be independent; real shots differ in what they show, and on
+simulated sessions the pooled ``χ²`` varies 1.08-1.35 times as much as chi-square over ``Σ dof``
+(``benchmarks/bench_cross_validation.py --correlation``): worth 2-3 times one split's directions.
+A pooled ``ratio`` above :data:`RATIO_WARN` means the stated uncertainty is too small, and
+:func:`cross_validation_warnings` says so in one line per camera.
 """
 
 from __future__ import annotations
@@ -198,15 +200,10 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
     ref = 0
     out = {}
     for c, cam in enumerate(full.state.cameras):
-        q, p_cam = grid_points_cam(cam, working_distance_m[cam.name], samples)
-        common = np.all(np.isfinite(p_cam), axis=1)
-        for half in halves:
-            common &= _inside_hull(_observed_pixels(half, c), q)
-        if np.count_nonzero(common) < MIN_COMMON_POINTS:
+        p_ref = common_points(full, halves, c, working_distance_m[cam.name], samples)
+        if p_ref is None:
             out[cam.name] = None
             continue
-        ref_from_cam = full.state.cameras[ref].cam_from_world @ cam.cam_from_world.inverse()
-        p_ref = ref_from_cam.apply(p_cam[common])
         projected, modes = [], []
         for half, unc in zip(halves, uncertainties):
             q_half, G, cols = _projection_jacobian(half, c, ref, p_ref)
@@ -221,6 +218,41 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
         seen_modes = modes.reshape(len(diff), 2, k)[seen].reshape(2 * np.count_nonzero(seen), k)
         out[cam.name] = _judge(diff[seen], seen_modes)
     return CrossValidation(out, full.state.cameras[ref].name)
+
+
+def common_points(full: BundleResult, halves: list[BundleResult], camera: int, depth_m: float,
+                  samples=MAP_SAMPLES) -> np.ndarray | None:
+    """(n, 3) points in the reference camera's frame (m) that a camera's halves are compared at:
+    those at ``depth_m`` behind the grid pixels inside the hull of the corners every half saw in
+    that camera (None when fewer than :data:`MIN_COMMON_POINTS`)."""
+    cam = full.state.cameras[camera]
+    q, p_cam = grid_points_cam(cam, depth_m, samples)
+    common = np.all(np.isfinite(p_cam), axis=1)
+    for half in halves:
+        common &= _inside_hull(_observed_pixels(half, camera), q)
+    if np.count_nonzero(common) < MIN_COMMON_POINTS:
+        return None
+    ref_from_cam = full.state.cameras[0].cam_from_world @ cam.cam_from_world.inverse()
+    return ref_from_cam.apply(p_cam[common])
+
+
+def whitening(modes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The independent directions of a pixel difference whose covariance is ``modes modesᵀ``.
+
+    Parameters
+    ----------
+    modes : ndarray of shape (2n, m)
+
+    Returns
+    -------
+    U : ndarray of shape (2n, dof)
+        Orthonormal directions, those with singular values above :data:`WHITEN_RTOL` of the largest.
+    s : ndarray of shape (dof,)
+        Their standard deviations, pixels: ``U.T @ d / s`` is the whitened difference.
+    """
+    U, s, _ = np.linalg.svd(modes, full_matrices=False)
+    keep = s > WHITEN_RTOL * s[0] if len(s) and s[0] > 0 else np.zeros(len(s), dtype=bool)
+    return U[:, keep], s[keep]
 
 
 def _sigma_modes(G: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -252,10 +284,9 @@ def _judge(diff_px: np.ndarray, modes: np.ndarray) -> CameraCrossValidation:
     """
     n = len(diff_px)
     d = diff_px.ravel()
-    U, s, _ = np.linalg.svd(modes, full_matrices=False)
-    keep = s > WHITEN_RTOL * s[0] if len(s) and s[0] > 0 else np.zeros(len(s), dtype=bool)
-    z = (U[:, keep].T @ d) / s[keep]
-    dof = int(np.count_nonzero(keep))
+    U, s = whitening(modes)
+    z = (U.T @ d) / s
+    dof = len(s)
     return CameraCrossValidation(float(np.sqrt(d @ d / n)), float(np.sqrt(np.sum(modes ** 2) / n)),
                                  float(np.max(np.linalg.norm(diff_px, axis=1))), n,
                                  float(np.sqrt(z @ z / dof)) if dof else float("nan"), dof)
@@ -324,25 +355,21 @@ def cross_validation_warnings(cv: CrossValidation | None) -> list[str]:
     """One line per camera whose ``ratio`` exceeds :data:`RATIO_WARN`."""
     if cv is None:
         return []
-    return [f"{name}: {_compared(cv, name)} by {r.ratio:.1f} sigma of their stated uncertainty{_pooled(cv, name)} "
-            f"(RMS {r.measured_px:.3g} px, predicted {r.predicted_px:.3g} px): its sigmas are too small; likely "
-            "systematic corner error, board flex, too few or too similar views, or too many distortion terms "
-            "(what to do: calibration_report/summary.txt)"
-            for name, r in cv.cameras.items() if r is not None and r.ratio > RATIO_WARN]
+    lines = []
+    for name, r in cv.cameras.items():
+        if r is not None and r.ratio > RATIO_WARN:
+            subject, pooled = _compared(cv, name)
+            lines.append(f"{name}: {subject} by {r.ratio:.1f} sigma of their stated uncertainty{pooled} "
+                         f"(RMS {r.measured_px:.3g} px, predicted {r.predicted_px:.3g} px): its sigmas are too small; "
+                         "likely systematic corner error, board flex, too few or too similar views, or too many "
+                         "distortion terms (what to do: calibration_report/summary.txt)")
+    return lines
 
 
-def _used_splits(cv: CrossValidation, camera: str) -> list[str]:
-    """The splits that judged a camera (odd/even alone for one split's comparison)."""
-    return [split for split, cameras in cv.splits.items() if cameras[camera] is not None] or ["odd/even"]
-
-
-def _compared(cv: CrossValidation, camera: str) -> str:
-    """The subject of a camera's warning."""
-    used = _used_splits(cv, camera)
-    return "the odd and even views differ" if used[0] == "odd/even" else "interleaved halves of the views differ"
-
-
-def _pooled(cv: CrossValidation, camera: str) -> str:
-    """How many more splits a camera's ratio pools, for its warning."""
-    more = len(_used_splits(cv, camera)) - 1
-    return f", pooled with {more} more interleaved split{'s' if more > 1 else ''} into halves" if more else ""
+def _compared(cv: CrossValidation, camera: str) -> tuple[str, str]:
+    """What a camera's warning says it compared: the subject, and how many more splits it pooled
+    (odd/even alone for one split's comparison)."""
+    used = [split for split, cameras in cv.splits.items() if cameras[camera] is not None] or ["odd/even"]
+    subject = "the odd and even views differ" if used[0] == "odd/even" else "interleaved halves of the views differ"
+    more = len(used) - 1
+    return subject, f", pooled with {more} more interleaved split{'s' * (more > 1)} into halves" if more else ""
