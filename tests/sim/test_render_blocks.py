@@ -58,7 +58,8 @@ def test_beamlets_sum_the_nearest_landings_within_their_reach():
         rel = x - beams.origin[j]
         z = rel @ beams.direction[j]
         w = beams.radius(z, j)
-        inten = 2 * beams.power_W[j] / (np.pi * w * w) * np.exp(-2 * (np.einsum("ij,ij->i", rel, rel) - z * z) / (w * w))
+        rho2 = np.einsum("ij,ij->i", rel, rel) - z * z
+        inten = 2 * beams.power_W[j] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
         counted = (nearest == j).any(axis=1) & (dist[:, j] <= beams.reach_m[j]) & (z > 0)
         want += np.where(counted, inten, 0.0)
     assert np.count_nonzero(want) > 200

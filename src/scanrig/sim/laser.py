@@ -247,10 +247,12 @@ class GaussianBeams:
         for s in range(0, n, _EVAL_BLOCK):
             e = min(n, s + _EVAL_BLOCK)
             total[s:e], arg[s:e], path[s:e] = self._evaluate_block(x[s:e])
+        propagation = np.take(self.direction, arg, axis=0)
         if self.emitter_normal is not None:
-            n_e = self.emitter_normal[arg]
-            path = np.einsum("ij,ij->i", x - self.origin[arg], n_e) / np.einsum("ij,ij->i", self.direction[arg], n_e)
-        return total, self.direction[arg], path
+            n_e = np.take(self.emitter_normal, arg, axis=0)
+            from_emitter = x - np.take(self.origin, arg, axis=0)
+            path = np.einsum("ij,ij->i", from_emitter, n_e) / np.einsum("ij,ij->i", propagation, n_e)
+        return total, propagation, path
 
     def _evaluate_block(self, x: np.ndarray):
         """:meth:`evaluate` at points ``x`` (n, 3): summed irradiance (n,), the dominant beam (n,)
@@ -258,18 +260,18 @@ class GaussianBeams:
         """
         idx, valid = self._candidates(x)                                  # (n, k)
         # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
-        rows, cols = np.nonzero(valid)
-        pair = idx[rows, cols]
-        rel = np.take(x, rows, axis=0) - np.take(self.origin, pair, axis=0)     # (p, 3)
+        flat = np.flatnonzero(valid)
+        pair = np.take(idx, flat)
+        rel = np.take(x, flat // idx.shape[1], axis=0) - np.take(self.origin, pair, axis=0)     # (p, 3)
         z_pair = np.einsum("ij,ij->i", rel, np.take(self.direction, pair, axis=0))
         rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
         w = self.radius(z_pair, pair)
         inten_pair = 2 * self.power_W[pair] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
         inten_pair[z_pair <= 0] = 0.0
         inten = np.zeros(idx.shape)
-        inten[rows, cols] = inten_pair
+        inten.ravel()[flat] = inten_pair
         z = np.zeros(idx.shape)
-        z[rows, cols] = z_pair
+        z.ravel()[flat] = z_pair
         dominant = inten.argmax(axis=1)[:, None]
         return (inten.sum(axis=1), np.take_along_axis(idx, dominant, axis=1)[:, 0],
                 np.take_along_axis(z, dominant, axis=1)[:, 0])
