@@ -391,11 +391,11 @@ def _block_mean(fine: np.ndarray, s: int) -> np.ndarray:
     ``fine.reshape(h, s, w, s).mean(axis=(1, 3))``.
 
     numpy adds each block row (its ``s`` values in :func:`_pairwise_row_sum` order) into the
-    result, block row after block row, then divides by ``s²``; done by numpy every block row
-    is an inner loop of ``s`` values (a quarter of a laser frame's mean time per call at
-    ``s`` = 4). Here the same additions, in the same order, are whole-image operations on
-    strided views. A result one pixel wide is left to numpy: its iterator then merges a
-    block's rows into one run of ``s²`` values, summed in another order.
+    result, block row after block row, then divides by ``s²``; but it runs an inner loop per
+    block row of ``s`` values. Here the same additions, in the same order, are whole-image
+    operations on strided views (6 instead of 26 ms on a 300 × 600 px window at ``s`` = 4),
+    so laser windows stay bit-identical. A result one pixel wide is left to numpy: its
+    iterator then merges a block's rows into one run of ``s²`` values, summed in another order.
 
     Parameters
     ----------
