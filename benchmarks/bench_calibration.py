@@ -274,8 +274,8 @@ def opencv_stereo() -> None:
           f"PROVENANCE (FIX_INTRINSIC) 0.0836")
     cv_ = result.cross_validation
     for name, r in cv_.cameras.items():
-        print(f"  cross-validation {name}: odd/even diff RMS {r.measured_px:.3f} px, "
-              f"predicted {r.predicted_px:.3f} px, whitened ratio {r.ratio:.2f}" if r else
+        print(f"  cross-validation {name}: halves differ by RMS {r.measured_px:.3f} px, "
+              f"predicted {r.predicted_px:.3f} px, whitened ratio pooled over the splits {r.ratio:.2f}" if r else
               f"  cross-validation {name}: no common area")
 
 

@@ -42,16 +42,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
+import itertools
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2, kstest
 
-from scanrig.calibration.cross_validation import (SPLITS, _projection_jacobian, _sigma_modes, common_points,
-                                                  split_halves, whitening)
+from scanrig.calibration.cross_validation import (RATIO_WARN, SPLITS, CameraCrossValidation, _projection_jacobian,
+                                                  _sigma_modes, common_points, split_halves, whitening)
 from scanrig.calibration.pipeline import _solve_half, calibrate
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
-from scanrig.calibration.uncertainty import covariance
+from scanrig.calibration.uncertainty import parameter_covariance
 from scanrig.targets import charuco, cube
 
 SIGMA_PX = 0.1
@@ -75,9 +77,9 @@ def main() -> None:
         return
     with open("/proc/loadavg") as f:
         print(f"load: {f.read().strip()}")
-    print("shots seed  time | per camera: pooled whitened ratio (dof), odd/even whitened ratio (dof), "
+    print("shots seed  time | per camera: pooled whitened ratio (dof); each split's whitened ratio; "
           "RMS measured / predicted px = plain ratio")
-    checks = {}       # shots -> [(pooled ratio, dof, plain ratio, seed, camera, odd/even ratio, dof)]
+    checks = {}       # shots -> [Check]
     for n_shots in (int(s) for s in args.shots.split(",")):
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             rng = np.random.default_rng(seed)
@@ -95,30 +97,45 @@ def main() -> None:
                 if r is None:
                     parts.append(f"{name}: no common area")
                     continue
-                odd_even = cv.splits.get("odd/even", {}).get(name)
-                oe = (odd_even.ratio, odd_even.dof) if odd_even is not None else (np.nan, 0)
-                checks.setdefault(n_shots, []).append((r.ratio, r.dof, r.measured_px / r.predicted_px, seed, name) + oe)
-                parts.append(f"{name}: {r.ratio:.2f} ({r.dof}), {oe[0]:.2f} ({oe[1]}), "
-                             f"{r.measured_px:.3f}/{r.predicted_px:.3f} px = {r.measured_px / r.predicted_px:.2f}")
+                splits = {split: cameras[name] for split, cameras in cv.splits.items() if cameras[name] is not None}
+                checks.setdefault(n_shots, []).append(Check(r, seed, name, splits))
+                parts.append(f"{name}: {r.ratio:.2f} ({r.dof}); "
+                             + ", ".join(f"{c.ratio:.2f}" for c in splits.values())
+                             + f"; {r.measured_px:.3f}/{r.predicted_px:.3f} px = {r.measured_px / r.predicted_px:.2f}")
             print(f"{n_shots:5d} {seed:4d} {elapsed:5.1f}s | " + "; ".join(parts), flush=True)
-    print("\nshots | pooled whitened ratio: median [min, max], outside 0.5-2 (by chance) | odd/even alone: the same | "
-          "plain ratio: median [min, max], outside 0.5-2 | cameras")
+    print("\nshots | pooled whitened ratio: median [min, max], outside 0.5-2 (by chance) | plain ratio: median "
+          "[min, max], outside 0.5-2 | cameras")
     for n_shots, rows in checks.items():
         print(_summary_row(f"{n_shots:5d}", rows))
     every = [row for rows in checks.values() for row in rows]
     print(_summary_row("  all", every))
-    p, (ratio, dof, _, seed, name, *_), shots = min(
-        (chi2.sf(row[0] ** 2 * row[1], row[1]), row, n) for n, rows in checks.items() for row in rows)
-    print(f"smallest chi-square tail probability: {p:.1e} ({shots} shots, seed {seed}, {name}: ratio {ratio:.2f} "
-          f"over {dof} directions)")
+    print(f"\neach split alone (all shot counts) | whitened ratio: median [min, max], outside 0.5-2 (by chance) | "
+          f"above RATIO_WARN {RATIO_WARN:g} (warned)")
+    for split in SPLITS:
+        alone = [row.splits[split] for row in every if split in row.splits]
+        print(f"  {split:20s} | {_whitened_summary([c.ratio for c in alone], [c.dof for c in alone])} | "
+              f"{sum(c.ratio > RATIO_WARN for c in alone)} of {len(alone)}")
+    p, row, shots = min(((chi2.sf(row.pooled.ratio ** 2 * row.pooled.dof, row.pooled.dof), row, n)
+                         for n, rows in checks.items() for row in rows), key=lambda t: t[0])
+    print(f"smallest chi-square tail probability: {p:.1e} ({shots} shots, seed {row.seed}, {row.camera}: ratio "
+          f"{row.pooled.ratio:.2f} over {row.pooled.dof} directions)")
     print(_tail_summary(every))
 
 
+@dataclass(frozen=True)
+class Check:
+    """One camera's cross-validation in one simulated session: pooled, and each split's (name -> figures)."""
+
+    pooled: CameraCrossValidation
+    seed: int
+    camera: str
+    splits: dict
+
+
 def _summary_row(label: str, rows: list) -> str:
-    """One line of the summary table over ``(pooled, dof, plain, seed, camera, odd/even, dof)`` rows."""
-    p = np.array([row[2] for row in rows])
-    return (f"{label} | {_whitened_summary([row[0] for row in rows], [row[1] for row in rows])} | "
-            f"{_whitened_summary([row[5] for row in rows], [row[6] for row in rows])} | "
+    """One line of the summary table over :class:`Check` rows."""
+    p = np.array([row.pooled.measured_px / row.pooled.predicted_px for row in rows])
+    return (f"{label} | {_whitened_summary([row.pooled.ratio for row in rows], [row.pooled.dof for row in rows])} | "
             f"{np.median(p):.2f} [{p.min():.2f}, {p.max():.2f}], {_outside(p)} | {len(p)}")
 
 
@@ -138,8 +155,8 @@ def _tail_summary(rows: list) -> str:
     their ratios are correlated; one camera's checks are independent), and the counts below 1e-2
     and 1e-3 against their expectation.
     """
-    p = np.array([chi2.sf(row[0] ** 2 * row[1], row[1]) for row in rows])
-    cameras = np.array([row[4] for row in rows])
+    p = np.array([chi2.sf(row.pooled.ratio ** 2 * row.pooled.dof, row.pooled.dof) for row in rows])
+    cameras = np.array([row.camera for row in rows])
     ks = ", ".join(f"{name} {kstest(p[cameras == name], 'uniform').pvalue:.2f}" for name in sorted(set(cameras)))
     return (f"tail probabilities uniform? KS p-value per camera: {ks}; below 1e-2: {np.count_nonzero(p < 1e-2)} "
             f"(expected {1e-2 * len(p):.1f}), below 1e-3: {np.count_nonzero(p < 1e-3)} (expected {1e-3 * len(p):.2f})")
@@ -159,7 +176,7 @@ def split_correlation(target, n_shots: int, seed: int) -> None:
     for split, pattern in SPLITS.items():
         halves = [_solve_half(full, shots, {}) for shots in split_halves(n_shots, pattern)]
         noise_maps = [_noise_map(full.bundle, half) for half in halves]
-        covariances = [covariance(half).covariance for half in halves]
+        covariances = [parameter_covariance(half)[0] for half in halves]
         for c, cam in enumerate(full.rig.cameras):
             p_ref = common_points(full.bundle, halves, c, full.working_distance_m[cam.name])
             modes, difference = [], 0.0
@@ -173,7 +190,7 @@ def split_correlation(target, n_shots: int, seed: int) -> None:
     for cam in full.rig.names:
         total_dof = sum(len(maps[split, cam]) for split in names)
         parts, rho2 = [], 0.0
-        for a, b in ((0, 1), (0, 2), (1, 2)):
+        for a, b in itertools.combinations(range(len(names)), 2):
             rho = _canonical_correlations(maps[names[a], cam], maps[names[b], cam])
             rho2 += np.sum(rho ** 2)
             parts.append(f"{names[a]} / {names[b]} {np.sqrt(np.mean(rho ** 2)):.2f} (max {rho.max():.2f})")

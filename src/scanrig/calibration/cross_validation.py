@@ -1,7 +1,8 @@
 """Cross-validation: do independent halves of the views differ as their σ says?
 
-The shots are split into two halves three ways (:data:`SPLITS`: odd/even and two more
-interleaved patterns), and the two halves of each split are calibrated apart
+The shots are split into two halves four ways (:data:`SPLITS`: odd/even, two more interleaved
+patterns, and the first half of the session against the second), and the two halves of each
+split are calibrated apart
 (:func:`scanrig.calibration.pipeline.calibrate` solves them); this module compares the two
 solutions of a split and predicts their difference from *their own* covariances. Since the
 halves share no observation, their errors are independent and the covariance of the difference
@@ -33,12 +34,14 @@ chi-square over ``dof`` directions.
 
 One split's ``χ²`` still has few directions (below 0.5 by chance for ~1 % of cameras at 9
 directions), so the splits are pooled (:func:`combine_splits`), ``sqrt(Σ χ² / Σ dof)``. The
-three splits' contrasts are orthogonal over every block of 4 shots, so with shots of equal
-information their differences would be independent; real shots differ in what they show, and on
-simulated sessions the pooled ``χ²`` varies 1.08-1.35 times as much as chi-square over ``Σ dof``
-(``benchmarks/bench_cross_validation.py --correlation``): worth 2-3 times one split's directions.
-A pooled ``ratio`` above :data:`RATIO_WARN` means the stated uncertainty is too small, and
-:func:`cross_validation_warnings` says so in one line per camera.
+splits' contrasts are orthogonal over every block of 8 shots, so with shots of equal information
+their differences would be independent; real shots differ in what they show, so they are
+somewhat correlated (``benchmarks/bench_cross_validation.py --correlation``). Interleaved halves
+of shots taken in sequence (a video) share where the board was, and so what is wrong with such
+views; the first and second halves of the session do not, which is why that split is there.
+A ``ratio`` above :data:`RATIO_WARN` in any split (and so in the pooled one, which cannot exceed
+the largest) means the stated uncertainty is too small: the chance of that at 9 directions is
+1e-13. :func:`cross_validation_warnings` says so in one line per camera, naming the split.
 """
 
 from __future__ import annotations
@@ -48,18 +51,51 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, rotation_jacobians
-from scanrig.calibration.uncertainty import MAP_SAMPLES, Uncertainty, grid_points_cam
+from scanrig.calibration.uncertainty import MAP_SAMPLES, grid_points_cam
 from scanrig.geometry.transform import skew
 
 #: ``ratio`` above this is warned about. When the σ are right, ``ratio²`` is chi-square over
 #: ``dof`` directions divided by ``dof``; with 4 directions it exceeds 3² = 9 with probability
 #: 3e-7, with 9 directions 1e-13: a warning means a real excess.
 RATIO_WARN = 3.0
-#: The splits of the shots into two halves: the half (0 or 1) of each shot index modulo 4.
-#: As ±1 contrasts these are Walsh (Hadamard) patterns, orthogonal to each other over every
-#: block of 4 shots (the third is the product of the first two), and each half of each split
-#: has every other shot of the session's order: both halves span the whole sequence.
-SPLITS = {"odd/even": (0, 1, 0, 1), "pairs": (0, 0, 1, 1), "staggered pairs": (0, 1, 1, 0)}
+
+
+@dataclass(frozen=True)
+class Split:
+    """A split of the session's shots (in its natural order) into two halves.
+
+    Attributes
+    ----------
+    halves : str
+        The two halves in words, for the warning: "the odd and even shots".
+    pattern : tuple of 4 int or None
+        The half (0 or 1) of each shot index modulo 4; None for the first half of the session
+        against the second.
+    """
+
+    halves: str
+    pattern: tuple | None = None
+
+    def half_of(self, n_shots: int) -> np.ndarray:
+        """(n_shots,) int: the half (0 or 1) of each shot."""
+        index = np.arange(n_shots)
+        if self.pattern is None:
+            return (2 * index >= n_shots).astype(int)
+        return np.asarray(self.pattern)[index % 4]
+
+
+#: The splits of the shots into two halves. As ±1 contrasts these are the four lowest Walsh
+#: (Hadamard) patterns but the constant, orthogonal to each other over every block of 8 shots: the
+#: first three interleave (each half has every other shot, or pair of shots, of the whole
+#: sequence), the last is blocked (the first half of the session against the second). Shots taken
+#: in sequence (a video, a hand-held sweep) share, between neighbours, where the board was; errors
+#: tied to that (corner bias with the view angle, flex, a model that fits one region) are shared
+#: by interleaved halves and cancel in their difference, but differ between the first and second
+#: halves of the session.
+SPLITS = {"odd/even": Split("the odd and even shots", (0, 1, 0, 1)),
+          "pairs": Split("alternate pairs of shots (1-2 and 3-4 of every four)", (0, 0, 1, 1)),
+          "staggered pairs": Split("the outer and inner shots of every four (1, 4 and 2, 3)", (0, 1, 1, 0)),
+          "first/second halves": Split("the first and second halves of the shots")}
 #: Pixel-space directions whose singular value is below this fraction of the largest are left
 #: out of the whitened ratio: they carry less than 1e-6 of the largest variance, where the
 #: difference would be second-order terms and round-off rather than data. (The two halves'
@@ -135,20 +171,20 @@ class CrossValidation:
     splits: dict = field(default_factory=dict)
 
 
-def split_halves(n_shots: int, pattern: tuple) -> tuple[np.ndarray, np.ndarray]:
+def split_halves(n_shots: int, split: Split) -> tuple[np.ndarray, np.ndarray]:
     """The shot indices of the two halves of a split.
 
     Parameters
     ----------
     n_shots : int
-    pattern : tuple of 4 int
-        The half (0 or 1) of each shot index modulo 4 (a value of :data:`SPLITS`).
+    split : Split
+        A value of :data:`SPLITS`.
 
     Returns
     -------
     half0, half1 : ndarray of int
     """
-    half = np.asarray(pattern)[np.arange(n_shots) % 4]
+    half = split.half_of(n_shots)
     return np.flatnonzero(half == 0), np.flatnonzero(half == 1)
 
 
@@ -180,7 +216,7 @@ def _pool(checks: list) -> CameraCrossValidation | None:
                                  float(np.sqrt(chi2 / dof)) if dof else float("nan"), dof)
 
 
-def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties: list[Uncertainty],
+def compare_halves(full: BundleResult, halves: list[BundleResult], covariances: list[np.ndarray],
                    working_distance_m: dict, samples=MAP_SAMPLES) -> CrossValidation:
     """Measured and predicted difference between two independent half solutions, per camera.
 
@@ -190,8 +226,8 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
         Solution from all views: defines the compared points.
     halves : list of two BundleResult
         Solutions from the two halves of the shots (same cameras, same order).
-    uncertainties : list of two Uncertainty
-        Their covariances (:func:`scanrig.calibration.uncertainty.covariance`).
+    covariances : list of two ndarray of shape (n_params, n_params)
+        Their parameters' covariances (:func:`scanrig.calibration.uncertainty.parameter_covariance`).
     working_distance_m : dict
         ``camera -> depth (m)`` at which the points are placed.
     samples : (int, int)
@@ -205,10 +241,10 @@ def compare_halves(full: BundleResult, halves: list[BundleResult], uncertainties
             out[cam.name] = None
             continue
         projected, modes = [], []
-        for half, unc in zip(halves, uncertainties):
+        for half, cov in zip(halves, covariances):
             q_half, G, cols = _projection_jacobian(half, c, ref, p_ref)
             projected.append(q_half)
-            modes.append(_sigma_modes(G, unc.covariance[np.ix_(cols, cols)]))
+            modes.append(_sigma_modes(G, cov[np.ix_(cols, cols)]))
         diff, modes = projected[1] - projected[0], np.concatenate(modes, axis=1)
         seen = np.all(np.isfinite(diff), axis=1)          # a half may put a point behind the camera
         if np.count_nonzero(seen) < MIN_COMMON_POINTS:
@@ -352,24 +388,32 @@ def _projection_jacobian(result: BundleResult, camera: int, ref: int, p_ref: np.
 
 
 def cross_validation_warnings(cv: CrossValidation | None) -> list[str]:
-    """One line per camera whose ``ratio`` exceeds :data:`RATIO_WARN`."""
+    """One line per camera whose ``ratio`` exceeds :data:`RATIO_WARN` in some split (or, for one
+    split's comparison, in it), naming the split whose halves differ most."""
     if cv is None:
         return []
     lines = []
-    for name, r in cv.cameras.items():
-        if r is not None and r.ratio > RATIO_WARN:
-            subject, pooled = _compared(cv, name)
-            lines.append(f"{name}: {subject} by {r.ratio:.1f} sigma of their stated uncertainty{pooled} "
-                         f"(RMS {r.measured_px:.3g} px, predicted {r.predicted_px:.3g} px): its sigmas are too small; "
-                         "likely systematic corner error, board flex, too few or too similar views, or too many "
-                         "distortion terms (what to do: calibration_report/summary.txt)")
+    for name, pooled in cv.cameras.items():
+        split, worst = _worst_split(cv, name)
+        if worst is None or not worst.ratio > RATIO_WARN:
+            continue
+        n_splits = sum(cameras[name] is not None for cameras in cv.splits.values())
+        also = (f"; pooled over the {n_splits} splits into halves {pooled.ratio:.1f} x ({pooled.dof} directions)"
+                if n_splits > 1 else "")
+        shared = (" (errors shared by views taken in sequence: where the board was, its view angle, its flex)"
+                  if SPLITS[split].pattern is None else "")
+        lines.append(f"{name}: {SPLITS[split].halves} differ by {worst.ratio:.1f} x "
+                     f"their stated sigma ({worst.dof} directions, RMS {worst.measured_px:.3g} px, predicted "
+                     f"{worst.predicted_px:.3g} px){also}: its sigmas are too small{shared}; likely systematic corner "
+                     "error, board flex, too few or too similar views, or too many distortion terms (what to do: "
+                     "calibration_report/summary.txt)")
     return lines
 
 
-def _compared(cv: CrossValidation, camera: str) -> tuple[str, str]:
-    """What a camera's warning says it compared: the subject, and how many more splits it pooled
-    (odd/even alone for one split's comparison)."""
-    used = [split for split, cameras in cv.splits.items() if cameras[camera] is not None] or ["odd/even"]
-    subject = "the odd and even views differ" if used[0] == "odd/even" else "interleaved halves of the views differ"
-    more = len(used) - 1
-    return subject, f", pooled with {more} more interleaved split{'s' * (more > 1)} into halves" if more else ""
+def _worst_split(cv: CrossValidation, camera: str) -> tuple[str, CameraCrossValidation | None]:
+    """The split (name) whose halves differ most for a camera, in σ, and its figures; for one
+    split's comparison (no ``splits``) that comparison, named odd/even."""
+    checks = [(split, cameras[camera]) for split, cameras in cv.splits.items() if cameras[camera] is not None]
+    if not checks:
+        return "odd/even", cv.cameras[camera]
+    return max(checks, key=lambda check: np.nan_to_num(check[1].ratio, nan=-1.0))

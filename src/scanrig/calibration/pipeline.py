@@ -22,7 +22,7 @@ from scanrig.calibration.intrinsics_prior import (prior_pull_warning, solve_cons
                                                   with_known_intrinsics)
 from scanrig.calibration.observations import Observations
 from scanrig.calibration.summary import dropped_view_warnings
-from scanrig.calibration.uncertainty import Uncertainty, covariance, projection_uncertainty
+from scanrig.calibration.uncertainty import Uncertainty, covariance, parameter_covariance, projection_uncertainty
 from scanrig.errors import FileFormatError, InputError
 from scanrig.geometry.rig import Rig
 from scanrig.geometry.uncertainty import MAD_TO_SIGMA
@@ -181,13 +181,19 @@ def _working_distances(bundle: BundleResult, target: Target) -> dict:
 
 def _cross_validate(full: CalibrationResult, fixed_params, priors=None) -> CrossValidation | None:
     """Calibrate the two halves of each split of the shots apart and compare them, pooled over the
-    splits (None when no split's halves can be solved)."""
+    splits (None when no split's halves can be solved).
+
+    The splits divide the shots the full solution solved, in the session's order (a shot without
+    a pose would leave its half short, most of all in the first/second halves split when the
+    target left the view for the end of the session).
+    """
+    solved = np.array([s for s, pose in enumerate(full.bundle.state.world_from_target) if pose is not None])
     per_split = {}
-    for name, pattern in SPLITS.items():
-        halves = [_solve_half(full, shots, fixed_params, priors)
-                  for shots in split_halves(len(full.bundle.obs.shot_names), pattern)]
+    for name, split in SPLITS.items():
+        halves = [_solve_half(full, solved[shots], fixed_params, priors)
+                  for shots in split_halves(len(solved), split)]
         if all(h is not None for h in halves):
-            per_split[name] = compare_halves(full.bundle, halves, [covariance(h) for h in halves],
+            per_split[name] = compare_halves(full.bundle, halves, [parameter_covariance(h)[0] for h in halves],
                                              full.working_distance_m)
     return combine_splits(per_split) if per_split else None
 

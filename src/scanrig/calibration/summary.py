@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanrig.calibration.cross_validation import CAUSES, RATIO_WARN
+from scanrig.calibration.cross_validation import CAUSES, RATIO_WARN, cross_validation_warnings
 from scanrig.io.atomic import atomic_write, write_text_atomic
 
 #: Version of the ``summary.json`` layout.
@@ -56,22 +56,10 @@ def format_summary(result) -> str:
     cv = result.cross_validation
     lines.append("")
     if cv is None:
-        lines.append("cross-validation (odd/even shots): not run (turned off, too few shots per half, or a half "
-                     "that cannot be solved alone)")
+        lines.append("cross-validation (halves of the shots): not run (turned off, too few shots per half, or no "
+                     "split whose halves can be solved alone)")
     else:
-        for name, r in cv.cameras.items():
-            if r is None:
-                lines.append(f"cross-validation {name}: no common area")
-            elif r.dof == 0:
-                lines.append(f"cross-validation {name}: nothing to compare (its intrinsics are held fixed and "
-                             f"its pose defines the frame)")
-            else:
-                lines.append(f"cross-validation {name}: odd/even halves differ by RMS {r.measured_px:.3f} px "
-                             f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
-                             f"(ratio {r.ratio:.2f} over {r.dof} directions)")
-        if any(r is not None and r.ratio > RATIO_WARN for r in cv.cameras.values()):
-            lines.append(f"a ratio above {RATIO_WARN:g} means the stated uncertainty is too small. Likely causes:")
-            lines += [f"  - {cause}" for cause in CAUSES]
+        lines += _cross_validation_lines(cv)
     if result.not_found:
         lines.append(f"target not found in {len(result.not_found)} image(s): "
                      + ", ".join(f"{c}/{s}" for c, s in result.not_found[:10])
@@ -112,6 +100,31 @@ def dropped_view_warnings(dropped_views: list) -> list[str]:
     return lines
 
 
+def _cross_validation_lines(cv) -> list[str]:
+    """summary.txt's cross-validation lines: per camera the pooled figures and each split's ratio,
+    then the likely causes when some split's ratio exceeds RATIO_WARN."""
+    lines = [f"cross-validation: halves of the shots calibrated apart, {len(cv.splits) or 1} split(s) pooled "
+             f"({', '.join(cv.splits) or 'odd/even'})"]
+    for name, r in cv.cameras.items():
+        if r is None:
+            lines.append(f"cross-validation {name}: no common area")
+        elif r.dof == 0:
+            lines.append(f"cross-validation {name}: nothing to compare (its intrinsics are held fixed and "
+                         f"its pose defines the frame)")
+        else:
+            per_split = ", ".join(f"{split} {cameras[name].ratio:.2f}" for split, cameras in cv.splits.items()
+                                  if cameras[name] is not None)
+            lines.append(f"cross-validation {name}: halves differ by RMS {r.measured_px:.3f} px "
+                         f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
+                         f"(ratio {r.ratio:.2f} over {r.dof} directions" + (f"; per split: {per_split})" if per_split
+                                                                           else ")"))
+    if cross_validation_warnings(cv):
+        lines.append(f"a ratio above {RATIO_WARN:g} (pooled or in one split) means the stated uncertainty is too "
+                     "small. Likely causes:")
+        lines += [f"  - {cause}" for cause in CAUSES]
+    return lines
+
+
 def summary_dict(result) -> dict:
     """The content of ``summary.json`` (docs/file-formats.md): plain JSON types only."""
     b, unc, cv = result.bundle, result.uncertainty, result.cross_validation
@@ -140,8 +153,9 @@ def summary_dict(result) -> dict:
             "projection_sigma_px": {"depth_m": float(result.working_distance_m[cam.name]),
                                     "median": float(np.nanmedian(sig)), "max": float(np.nanmax(sig))},
             "cross_validation": None if check is None else {
-                "measured_px": check.measured_px, "predicted_px": check.predicted_px, "ratio": check.ratio,
-                "dof": check.dof, "max_px": check.max_px, "n_points": check.n_points},
+                **_check_dict(check),
+                "splits": {split: None if cameras[cam.name] is None else _check_dict(cameras[cam.name])
+                           for split, cameras in cv.splits.items()}},
         })
     out = {
         "format_version": SUMMARY_FORMAT_VERSION,
@@ -160,6 +174,12 @@ def summary_dict(result) -> dict:
         out["board_flex_m"] = [float(v) for v in b.state.flex_m]
         out["board_flex_std_m"] = [float(v) for v in unc.flex_std_m]
     return out
+
+
+def _check_dict(check) -> dict:
+    """One camera's cross-validation figures (pooled, or of one split) as JSON."""
+    return {"measured_px": check.measured_px, "predicted_px": check.predicted_px, "ratio": check.ratio,
+            "dof": check.dof, "max_px": check.max_px, "n_points": check.n_points}
 
 
 def write_summary_json(result, path: str | Path) -> None:

@@ -73,29 +73,9 @@ class Uncertainty:
 
 
 def covariance(result: BundleResult) -> Uncertainty:
-    """Covariance of every solved parameter (see the module docstring)."""
-    from scanrig.calibration.lm import normal_equations, solve_spd
-
-    A, _ = normal_equations(result.jacobian, np.zeros(result.jacobian.shape[0]))
-    scale = np.sqrt(np.maximum(A.diagonal(), 1e-300))
-    A_scaled = (A.multiply(1.0 / scale[:, None]).multiply(1.0 / scale[None, :])).tocsc()
-    names = _parameter_names(result)
-    warnings = []
-    try:
-        inv_scaled = solve_spd(A_scaled, np.eye(A.shape[0]))
-        singular_params = np.flatnonzero(np.diag(inv_scaled) > 1.0 / SINGULAR_RTOL)
-    except RuntimeError:
-        inv_scaled, singular_params = None, np.arange(0)
-    if inv_scaled is None or len(singular_params):
-        # Rank-deficient: name the parameters of the null directions, use the pseudo-inverse.
-        evals, evecs = np.linalg.eigh(A_scaled.toarray())
-        singular = evals < SINGULAR_RTOL * evals.max()
-        inv_scaled = (evecs * np.where(singular, 0.0, 1.0 / np.where(singular, 1.0, evals))) @ evecs.T
-        for k in np.flatnonzero(singular):
-            top = np.argsort(-np.abs(evecs[:, k]))[:3]
-            warnings.append("the data cannot determine a combination of " + ", ".join(names[i] for i in top)
-                            + "; add views with other tilts and positions of the target")
-    cov = inv_scaled / scale[:, None] / scale[None, :] * result.sigma_px ** 2
+    """Covariance of every solved parameter (see the module docstring), and the per-camera figures
+    and warnings drawn from it."""
+    cov, warnings = parameter_covariance(result)
     layout, state = result.layout, result.state
     params_std, center_std, rot_cov, rot_std, poor = {}, {}, {}, {}, {}
     for c, cam in enumerate(state.cameras):
@@ -121,6 +101,41 @@ def covariance(result: BundleResult) -> Uncertainty:
         rot_std[cam.name] = float(np.degrees(np.sqrt(np.trace(rot_cov[cam.name]) / 3.0)))
     flex_std = None if layout.flex is None else np.sqrt(np.maximum(np.diag(cov)[layout.flex], 0.0))
     return Uncertainty(cov, params_std, center_std, rot_cov, rot_std, poor, warnings, flex_std)
+
+
+def parameter_covariance(result: BundleResult) -> tuple[np.ndarray, list[str]]:
+    """Covariance of every solved parameter, ``σ² (JᵀJ)⁻¹`` (the pseudo-inverse when rank-deficient),
+    alone: what the cross-validation's halves need, without :func:`covariance`'s per-camera figures.
+
+    Returns
+    -------
+    cov : ndarray of shape (n_params, n_params)
+        In the units of the parameter vector ``result.x``.
+    warnings : list of str
+        One line per combination of parameters the data cannot determine.
+    """
+    from scanrig.calibration.lm import normal_equations, solve_spd
+
+    A, _ = normal_equations(result.jacobian, np.zeros(result.jacobian.shape[0]))
+    scale = np.sqrt(np.maximum(A.diagonal(), 1e-300))
+    A_scaled = (A.multiply(1.0 / scale[:, None]).multiply(1.0 / scale[None, :])).tocsc()
+    names = _parameter_names(result)
+    warnings = []
+    try:
+        inv_scaled = solve_spd(A_scaled, np.eye(A.shape[0]))
+        singular_params = np.flatnonzero(np.diag(inv_scaled) > 1.0 / SINGULAR_RTOL)
+    except RuntimeError:
+        inv_scaled, singular_params = None, np.arange(0)
+    if inv_scaled is None or len(singular_params):
+        # Rank-deficient: name the parameters of the null directions, use the pseudo-inverse.
+        evals, evecs = np.linalg.eigh(A_scaled.toarray())
+        singular = evals < SINGULAR_RTOL * evals.max()
+        inv_scaled = (evecs * np.where(singular, 0.0, 1.0 / np.where(singular, 1.0, evals))) @ evecs.T
+        for k in np.flatnonzero(singular):
+            top = np.argsort(-np.abs(evecs[:, k]))[:3]
+            warnings.append("the data cannot determine a combination of " + ", ".join(names[i] for i in top)
+                            + "; add views with other tilts and positions of the target")
+    return inv_scaled / scale[:, None] / scale[None, :] * result.sigma_px ** 2, warnings
 
 
 def distortion_warning(camera: str, poorly_determined: list) -> list[str]:

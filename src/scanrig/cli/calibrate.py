@@ -19,7 +19,7 @@ def command(
     session: Annotated[Path, typer.Argument(help="Session folder with target.toml and calibration/<camera>/<shot> images.")],
     model: Annotated[str, typer.Option(help="Camera model for every camera: opencv4, opencv5 or opencv8.")] = "opencv5",
     corners: Annotated[Path | None, typer.Option(help="Use detections from this CSV (image,camera,point_id,x,y[,weight]) instead of detecting.")] = None,
-    cross_validate: Annotated[bool, typer.Option(help="Also calibrate odd and even shots apart and compare.")] = True,
+    cross_validate: Annotated[bool, typer.Option(help="Also calibrate halves of the shots apart (odd/even, two more interleaved splits, first/second half) and compare them with their stated uncertainty.")] = True,
     plots: Annotated[bool, typer.Option(help="Write residual/uncertainty PNGs to calibration_report/.")] = True,
     light_plane: Annotated[bool, typer.Option("--light-plane", help="Also calibrate the fixed laser's plane of every camera with light_plane/<camera>/ images; writes light_plane.toml.")] = False,
     color: Annotated[str | None, typer.Option(help="Laser colour for --light-plane: red, green, blue or grey (default: laser_color of session.toml, else grey).")] = None,
@@ -31,7 +31,9 @@ def command(
 
     Detects the target of target.toml (chessboard, ChArUco, circle grid or cube) in every image,
     initialises without user input, runs one robust bundle adjustment over all intrinsics and
-    poses, and reports RMS, parameter sigmas, rejected outliers and an odd/even cross-validation.
+    poses, and reports RMS, parameter sigmas, rejected outliers and a cross-validation (halves of
+    the shots calibrated apart, four splits: three interleaved, and the first half of the shots
+    against the second).
 
     Intrinsics first, then the rig: with --intrinsics FILE (a rig.toml or OpenCV YAML), or for
     each camera with calibration_intrinsic/<camera>/ images (calibrated alone first, with
