@@ -10,22 +10,24 @@ With ``--caliscope`` it also calibrates the real 4-webcam ChArUco rig of
 ``../shared/data/caliscope-4cam-charuco`` (opencv4, rig views alone) and prints its
 cross-validation and warnings.
 
-For each camera it prints the whitened ratio pooled over the three splits of the shots into
+For each camera it prints the whitened ratio pooled over the four splits of the shots into
 halves (``sqrt(sum chi2 / sum dof)``, each split's halves' difference whitened by ``Sigma_A +
-Sigma_B``; 1 when the sigmas are right), the odd/even split's own whitened ratio, and, for
-comparison, the plain ratio of the pooled RMS pixel differences, measured / predicted, which one or
-two directions (the principal point) dominate. The acceptance of the cross-validation is the pooled
-ratio within 0.5-2 on every seed and shot count, median near 1. When the sigmas are right,
-``ratio² dof`` is chi-square over ``dof`` directions: for the odd/even split alone about 1 % of
-the ratios fall below 0.5 at 9 directions by chance, for the pooled ratio (~27 directions) 1e-6, so
-the summary prints how many chance puts outside 0.5-2 and the smallest chi-square tail probability
-of all the pooled checks. Whether those tail probabilities are uniform, as they are when the sigmas
-are right and the splits independent, it judges by a Kolmogorov-Smirnov test per camera (the three
-cameras of a session share its shots, so their ratios are correlated) and by the counts below 1e-2
-and 1e-3 against their expectation. ``--first-seed 20 --seeds 420 --shots 20`` draws fresh sessions
-for that: the first 20 seeds are those the acceptance table was read from.
+Sigma_B``; 1 when the sigmas are right), each split's own whitened ratio, and, for comparison,
+the plain ratio of the pooled RMS pixel differences, measured / predicted, which one or two
+directions (the principal point) dominate. The acceptance of the cross-validation is the pooled
+ratio within 0.5-2 on every seed and shot count, median near 1, and no single split's ratio above
+RATIO_WARN (a warning) on these clean sessions. When the sigmas are right, ``ratio² dof`` is
+chi-square over ``dof`` directions: for one split alone about 1 % of the ratios fall below 0.5 at
+9 directions by chance, for the pooled ratio (~36 directions) 1e-6, so the summary prints per
+split how many chance puts outside 0.5-2 and how many exceed RATIO_WARN, and the smallest
+chi-square tail probability of all the pooled checks. Whether those tail probabilities are
+uniform, as they are when the sigmas are right and the splits independent, it judges by a
+Kolmogorov-Smirnov test per camera (the three cameras of a session share its shots, so their
+ratios are correlated) and by the counts below 1e-2 and 1e-3 against their expectation.
+``--first-seed 20 --seeds 420 --shots 20`` draws fresh sessions for that: the first 20 seeds are
+those the acceptance table was read from.
 
-With ``--correlation`` it measures instead how independent the three splits are (e.g.
+With ``--correlation`` it measures instead how independent the splits are (e.g.
 ``--correlation --seeds 3 --shots 10,20,40,80``): the corners' noise carried linearly through
 every half (exact at this noise: the halves' non-linear remainder is below 0.11 sigma), each
 split's whitened pixel difference is a linear map of that noise, so the canonical correlations

@@ -34,7 +34,7 @@ chi-square over ``dof`` directions.
 
 One split's ``χ²`` still has few directions (below 0.5 by chance for ~1 % of cameras at 9
 directions), so the splits are pooled (:func:`combine_splits`), ``sqrt(Σ χ² / Σ dof)``. The
-splits' contrasts are orthogonal over every block of 8 shots, so with shots of equal information
+splits' contrasts are orthogonal (over any multiple of 8 shots), so with shots of equal information
 their differences would be independent; real shots differ in what they show, so they are
 somewhat correlated (``benchmarks/bench_cross_validation.py --correlation``). Interleaved halves
 of shots taken in sequence (a video) share where the board was, and so what is wrong with such
@@ -84,14 +84,14 @@ class Split:
         return np.asarray(self.pattern)[index % 4]
 
 
-#: The splits of the shots into two halves. As ±1 contrasts these are the four lowest Walsh
-#: (Hadamard) patterns but the constant, orthogonal to each other over every block of 8 shots: the
-#: first three interleave (each half has every other shot, or pair of shots, of the whole
-#: sequence), the last is blocked (the first half of the session against the second). Shots taken
-#: in sequence (a video, a hand-held sweep) share, between neighbours, where the board was; errors
-#: tied to that (corner bias with the view angle, flex, a model that fits one region) are shared
-#: by interleaved halves and cancel in their difference, but differ between the first and second
-#: halves of the session.
+#: The splits of the shots into two halves. As ±1 contrasts these are four of the Walsh
+#: (Hadamard) patterns, from the highest frequency (odd/even) to the lowest (first/second halves),
+#: orthogonal to each other over a session of 8, 16, ... shots. The first three interleave (each
+#: half has every other shot, or pair of shots, of the whole sequence); the last is blocked. Shots
+#: taken in sequence (a video, a hand-held sweep) share, between neighbours, where the board was;
+#: errors tied to that (corner bias with the view angle, flex, a model that fits one region) are
+#: shared by interleaved halves and cancel in their difference, but differ between the first and
+#: second halves of the session.
 SPLITS = {"odd/even": Split("the odd and even shots", (0, 1, 0, 1)),
           "pairs": Split("alternate pairs of shots (1-2 and 3-4 of every four)", (0, 0, 1, 1)),
           "staggered pairs": Split("the outer and inner shots of every four (1, 4 and 2, 3)", (0, 1, 1, 0)),
