@@ -15,6 +15,7 @@ import pytest
 
 from scanrig.calibration.bundle import Problem, State, bundle_adjust, pack, unpack
 from scanrig.calibration.cross_validation import (
+    CAUSES,
     RATIO_WARN,
     SPLITS,
     CameraCrossValidation,
@@ -308,3 +309,19 @@ def test_a_split_whose_half_is_too_small_is_left_out(session):
         parts = [cameras[name] for cameras in cv.splits.values()]
         assert check.dof == sum(p.dof for p in parts)
         assert check.ratio ** 2 * check.dof == pytest.approx(sum(p.ratio ** 2 * p.dof for p in parts))
+
+
+def test_summary_lists_every_splits_ratio_and_the_causes_when_one_split_is_high():
+    """summary.txt: per camera the pooled figures and each split's ratio; the causes once some
+    split's ratio exceeds RATIO_WARN, even when the pooled one does not."""
+    from scanrig.calibration.summary import _cross_validation_lines
+
+    splits = {"odd/even": {"a": _check(1.0, 9, 100)}, "first/second halves": {"a": _check(RATIO_WARN + 0.5, 4, 50)}}
+    cv = combine_splits({name: CrossValidation(cameras, "a") for name, cameras in splits.items()})
+    assert cv.cameras["a"].ratio < RATIO_WARN
+    lines = _cross_validation_lines(cv)
+    assert lines[1].endswith(f"(ratio {cv.cameras['a'].ratio:.2f} over 13 directions; per split: odd/even 1.00, "
+                             f"first/second halves {RATIO_WARN + 0.5:.2f})")
+    assert lines[-len(CAUSES):] == [f"  - {cause}" for cause in CAUSES]
+    quiet = combine_splits({"odd/even": CrossValidation({"a": _check(1.0, 9, 100)}, "a")})
+    assert not any("Likely causes" in line for line in _cross_validation_lines(quiet))
