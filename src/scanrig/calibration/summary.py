@@ -114,13 +114,13 @@ def _cross_validation_lines(cv) -> list[str]:
         else:
             per_split = ", ".join(f"{split} {cameras[name].ratio:.2f}" for split, cameras in cv.splits.items()
                                   if cameras[name] is not None)
+            detail = f"; per split: {per_split}" if per_split else ""
             lines.append(f"cross-validation {name}: halves differ by RMS {r.measured_px:.3f} px "
                          f"(max {r.max_px:.3f} px); their uncertainty predicts {r.predicted_px:.3f} px "
-                         f"(ratio {r.ratio:.2f} over {r.dof} directions" + (f"; per split: {per_split})" if per_split
-                                                                           else ")"))
+                         f"(ratio {r.ratio:.2f} over {r.dof} directions{detail})")
     if cross_validation_warnings(cv):
-        lines.append(f"a ratio above {RATIO_WARN:g} (pooled or in one split) means the stated uncertainty is too "
-                     "small. Likely causes:")
+        lines.append(f"a ratio above {RATIO_WARN:g} in any split means the stated uncertainty is too small. "
+                     "Likely causes:")
         lines += [f"  - {cause}" for cause in CAUSES]
     return lines
 
