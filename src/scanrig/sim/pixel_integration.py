@@ -50,16 +50,20 @@ def edge_sample_offsets(centres: np.ndarray, s: int) -> np.ndarray:
 
     Returns
     -------
-    ndarray of shape (N, s², 2)
-        Offsets in [-0.5, 0.5)², pixels.
+    ndarray of shape (2, N, s²)
+        Offsets along u (``[0]``) and along v (``[1]``), in [-0.5, 0.5), pixels. One axis per
+        plane: every operation here and in its users then runs over rows of ``s²`` values, not
+        pairs (numpy ran an inner loop per (u, v) pair).
     """
     index = centres[:, 1] * 65536.0 + centres[:, 0]
-    shift = index[:, None] * R2_STEPS[None, :]
-    shift -= np.floor(shift)                 # = np.mod(shift, 1.0) exactly (shift >= 0), cheaper
-    offsets = _base_pattern(s)[None] + shift[:, None, :]
-    # the sums lie in [0, 2): subtracting 1 from those >= 1 is np.mod(., 1.0) exactly (Sterbenz)
-    offsets -= offsets >= 1.0
-    offsets -= 0.5
+    offsets = np.empty((2, len(centres), s * s))
+    for axis, plane in enumerate(offsets):
+        shift = index * R2_STEPS[axis]
+        shift -= np.floor(shift)             # = np.mod(shift, 1.0) exactly (shift >= 0), cheaper
+        np.add(_base_pattern(s)[:, axis], shift[:, None], out=plane)
+        # the sums lie in [0, 2): subtracting 1 from those >= 1 is np.mod(., 1.0) exactly (Sterbenz)
+        plane -= plane >= 1.0
+        plane -= 0.5
     return offsets
 
 
@@ -84,24 +88,41 @@ _TABLE_POINTS = 2048
 
 @functools.lru_cache(maxsize=8)
 def _box_gauss_table(reach: int, sigma_px: float) -> np.ndarray:
-    """``(box ⊛ G)(o - t)`` at ``o`` on a regular grid over [-0.5, 0.5] (rows) for the taps
-    ``t = -reach..reach`` (columns): the PSF integrated over the unit intervals around the taps
+    """``(box ⊛ G)(o - t)`` for the taps ``t = -reach..reach`` (rows) at ``o`` on a regular grid
+    over [-0.5, 0.5] (columns): the PSF integrated over the unit intervals around the taps
     (neighbouring intervals share an end, so the Gaussian CDF is evaluated once per end)."""
     offset = np.linspace(-0.5, 0.5, _TABLE_POINTS + 1)
     ends = np.arange(-reach - 0.5, reach + 1.0)
-    return -np.diff(ndtr((offset[:, None] - ends) / sigma_px), axis=1)
+    table = np.ascontiguousarray(-np.diff(ndtr((offset[:, None] - ends) / sigma_px), axis=1).T)
+    table.flags.writeable = False
+    return table
 
 
 def _box_gauss_taps(offset: np.ndarray, reach: int, sigma_px: float) -> np.ndarray:
-    """``(box ⊛ G)(offset - t)`` for the taps ``t = -reach..reach``, shape ``offset.shape + (T,)``,
-    interpolated in :func:`_box_gauss_table`."""
+    """``(box ⊛ G)(offset - t)`` for the taps ``t = -reach..reach``, interpolated in
+    :func:`_box_gauss_table`.
+
+    Parameters
+    ----------
+    offset : ndarray of shape (...)
+        Offsets from the pixel centre in [-0.5, 0.5], pixels.
+    reach, sigma_px
+        As :func:`integrate_pixels`.
+
+    Returns
+    -------
+    ndarray of shape (T,) + offset.shape
+        ``T = 2 reach + 1``, tap first: each tap's weights are then whole contiguous arrays
+        that the interpolation weights multiply without an inner loop per offset.
+    """
     table = _box_gauss_table(reach, float(sigma_px))
     x = (offset + 0.5) * _TABLE_POINTS
     i = np.clip(x.astype(np.int64), 0, _TABLE_POINTS - 1)
-    f = (x - i)[..., None]
-    out = np.take(table, i, axis=0)
+    f = x - i
+    out = np.take(table, i, axis=1)
     out *= 1.0 - f
-    above = np.take(table, i + 1, axis=0)
+    i += 1
+    above = np.take(table, i, axis=1)
     above *= f
     out += above
     return out
@@ -116,8 +137,8 @@ def _box_box_gauss(d: np.ndarray, sigma_px: float) -> np.ndarray:
     return ramp(d + 1.0) - 2.0 * ramp(d) + ramp(d - 1.0)
 
 
-def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: np.ndarray, s: int,
-                     sigma_px: float) -> np.ndarray:
+def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_offsets: np.ndarray,
+                     edge_radiance: np.ndarray, s: int, sigma_px: float) -> np.ndarray:
     """Pixel values of the optical image blurred by the PSF, then integrated by each pixel.
 
     Parameters
@@ -125,9 +146,11 @@ def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: 
     radiance : ndarray of shape (H, W)
         Radiance at each pixel centre (taken as uniform over the pixel unless it is an edge pixel).
     edge_idx : ndarray of shape (n,), int
-        Flat indices of the edge pixels.
+        Flat indices of the edge pixels, in increasing order.
+    edge_offsets : ndarray of shape (2, n, s²)
+        Their samples' offsets from the pixel centres, :func:`edge_sample_offsets`, pixels.
     edge_radiance : ndarray of shape (n s²,)
-        Radiance at their samples, :func:`edge_sample_offsets` order, pixel by pixel.
+        Radiance at their samples, ``edge_offsets`` order, pixel by pixel.
     s : int
         Samples per axis of an edge pixel.
     sigma_px : float
@@ -150,19 +173,51 @@ def integrate_pixels(radiance: np.ndarray, edge_idx: np.ndarray, edge_radiance: 
     edge_radiance = edge_radiance.reshape(len(edge_idx), s * s)
     out_flat = out.ravel()
     ty, tx = np.meshgrid(taps.astype(np.int64), taps.astype(np.int64), indexing="ij")
+    tap_step = (ty * w + tx).ravel()            # flat index step to each tap pixel, (T²,)
     for a in range(0, len(edge_idx), _BLOCK):
         idx = edge_idx[a:a + _BLOCK]
-        v, u = np.divmod(idx, w)
-        offsets = edge_sample_offsets(np.column_stack([u, v]).astype(np.float64), s)     # (n, s², 2)
         # K(x - j) for the (2 reach + 1)² pixels j around each edge pixel, separable in x and y.
-        kx = _box_gauss_taps(offsets[:, :, 0], reach, sigma_px)                          # (n, s², T)
-        ky = _box_gauss_taps(offsets[:, :, 1], reach, sigma_px)
-        patch = np.matmul((ky * edge_radiance[a:a + _BLOCK, :, None]).transpose(0, 2, 1), kx) / (s * s)
-        row = v[:, None, None] + ty[None]
-        col = u[:, None, None] + tx[None]
-        inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
-        target = (row * w + col)[inside]
+        kx = _box_gauss_taps(edge_offsets[0, a:a + _BLOCK], reach, sigma_px)            # (T, n, s²)
+        ky = _box_gauss_taps(edge_offsets[1, a:a + _BLOCK], reach, sigma_px)
+        ky *= edge_radiance[a:a + _BLOCK]
+        # (n, T, s²) @ (n, s², T): per pixel, the sum over its samples of ky radiance kx
+        patch = np.matmul(ky.transpose(1, 0, 2), kx.transpose(1, 2, 0))
+        patch /= s * s
+        target, weights = _inside_taps(idx, tap_step, ty, tx, patch, h, w, reach)
         # only the span of image the block reaches (the edge pixels are in raster order)
         lo, hi = target.min(), target.max() + 1
-        out_flat[lo:hi] += np.bincount(target - lo, weights=patch[inside], minlength=hi - lo)
+        out_flat[lo:hi] += np.bincount(target - lo, weights=weights, minlength=hi - lo)
     return out.astype(np.float32)
+
+
+def _inside_taps(idx: np.ndarray, tap_step: np.ndarray, ty: np.ndarray, tx: np.ndarray, patch: np.ndarray,
+                 h: int, w: int, reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat image indices and values of the tap pixels of a block of edge pixels that lie inside
+    the image, in ``patch``'s order.
+
+    Parameters
+    ----------
+    idx : ndarray of shape (n,), int
+        Flat indices of the edge pixels.
+    tap_step : ndarray of shape (T²,), int
+        Flat index step from a pixel to each of its taps (``ty w + tx``).
+    ty, tx : ndarray of shape (T, T), int
+        Tap rows and columns relative to the pixel.
+    patch : ndarray of shape (n, T, T)
+        Values at the taps.
+    h, w, reach : int
+        Image size and the taps' reach, pixels.
+
+    Returns
+    -------
+    target : ndarray of shape (m,), int
+    weights : ndarray of shape (m,)
+    """
+    v, u = np.divmod(idx, w)
+    target = idx[:, None] + tap_step
+    if v.min() >= reach and v.max() < h - reach and u.min() >= reach and u.max() < w - reach:
+        return target.ravel(), patch.ravel()        # every tap inside: no mask to apply
+    row = v[:, None, None] + ty
+    col = u[:, None, None] + tx
+    inside = ((row >= 0) & (row < h) & (col >= 0) & (col < w)).reshape(len(idx), -1)
+    return target[inside], patch.reshape(len(idx), -1)[inside]

@@ -44,10 +44,21 @@ def _normalised(camera: Camera, q: np.ndarray) -> np.ndarray:
 
 
 def _to_world(xy: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Unit world directions of normalised camera coordinates ``xy`` (N, 2); ``R`` is world_from_cam."""
+    """Unit world directions of normalised camera coordinates ``xy`` (N, 2); ``R`` is world_from_cam.
+
+    The additions and divisions run column by column: broadcasting a (3,) row or an (N, 1)
+    column over (N, 3) ran an inner loop per ray (1.2 vs 2.1 ms per 32 768 rays).
+    """
     d = xy @ R[:, :2].T                  # R @ (x, y, 1)
-    d += R[:, 2]
-    d /= np.sqrt(np.einsum("ij,ij->i", xy, xy) + 1.0)[:, None]
+    x, y = xy[:, 0], xy[:, 1]
+    norm = x * x                         # |(x, y, 1)|, summed in einsum's order: x², + y², + 1
+    norm += y * y
+    norm += 1.0
+    np.sqrt(norm, out=norm)
+    for axis in range(3):
+        column = d[:, axis]
+        column += R[axis, 2]
+        column /= norm
     return d
 
 
@@ -80,26 +91,48 @@ class PixelRayTable:
         """Rays of all pixel centres in row-major order: origin (3,), dirs (H*W, 3)."""
         return self.origin, self.to_world(self.xy.reshape(-1, 2))
 
+    @cached_property
+    def _xy_planes(self) -> np.ndarray:
+        """:attr:`xy` as two planes, x then y, each of the pixels in row-major order: (2, H*W)."""
+        return np.ascontiguousarray(np.moveaxis(self.xy, 2, 0).reshape(2, -1))
+
     def rays(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Like :func:`pixel_rays` for pixels ``q`` (N, 2) inside the image (clamped to its edge)."""
-        xy = self.xy
-        h, w = xy.shape[:2]
-        flat = xy.reshape(-1, 2)
-        u = np.clip(q[:, 0], 0.0, w - 1.0)
-        v = np.clip(q[:, 1], 0.0, h - 1.0)
-        u0 = np.minimum(u.astype(np.int64), w - 2)      # floor: u, v >= 0
-        v0 = np.minimum(v.astype(np.int64), h - 2)
+        return self.rays_uv(q[:, 0], q[:, 1])
+
+    def rays_uv(self, u_px: np.ndarray, v_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rays` of the pixels ``(u_px, v_px)``, each of shape (N,): origin (3,), dirs (N, 3).
+
+        Each normalised coordinate is interpolated on its own plane of :attr:`xy`: the gathers and
+        products then run over whole arrays, not over (x, y) pairs (an inner loop per pair).
+        """
+        h, w = self.xy.shape[:2]
+        u0 = np.minimum(np.clip(u_px, 0.0, w - 1.0).astype(np.int64), w - 2)    # floor: clipped >= 0
+        v0 = np.minimum(np.clip(v_px, 0.0, h - 1.0).astype(np.int64), h - 2)
         # extrapolate linearly past the outermost centres (half a pixel at most)
-        fu = (q[:, 0] - u0)[:, None]
-        fv = (q[:, 1] - v0)[:, None]
-        i00 = v0 * w + u0
-        top = np.take(flat, i00, axis=0)
-        top += (np.take(flat, i00 + 1, axis=0) - top) * fu
-        i00 += w
-        bottom = np.take(flat, i00, axis=0)
-        bottom += (np.take(flat, i00 + 1, axis=0) - bottom) * fu
-        top += (bottom - top) * fv
-        return self.origin, self.to_world(top)
+        fu = u_px - u0
+        fv = v_px - v0
+        i00 = v0 * w
+        i00 += u0
+        i10 = i00 + w
+        xy = np.empty((len(u_px), 2))
+        for axis, plane in enumerate(self._xy_planes):
+            top = self._lerp(plane, i00, fu)
+            bottom = self._lerp(plane, i10, fu)
+            bottom -= top
+            bottom *= fv
+            np.add(top, bottom, out=xy[:, axis])
+        return self.origin, self.to_world(xy)
+
+    @staticmethod
+    def _lerp(plane: np.ndarray, i0: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """``plane[i0] + (plane[i0 + 1] - plane[i0]) f``, each (N,), in that order of operations."""
+        low = np.take(plane, i0)
+        high = np.take(plane, i0 + 1)
+        high -= low
+        high *= f
+        high += low
+        return high
 
     def to_world(self, xy: np.ndarray) -> np.ndarray:
         """Unit world directions of normalised camera coordinates ``xy`` (N, 2)."""

@@ -116,12 +116,15 @@ class CameraView:
         s, sigma_px = self.sensor.supersampling, self.sensor.psf_sigma_px
         idx = np.flatnonzero(_edges(radiance, obj)) if s > 1 else np.zeros(0, dtype=np.int64)
         centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
-        # blocks of whole pixels (s² samples each), their samples made block by block
+        offsets = edge_sample_offsets(centres, s)                  # (2, n, s²), made once
+        # blocks of whole pixels (s² samples each)
         per = max(1, _BLOCK // (s * s))
 
         def sub_rays(a, b):
-            c = centres[a // (s * s):b // (s * s)]
-            return table.rays((c[:, None, :] + edge_sample_offsets(c, s)).reshape(-1, 2))[1]
+            pixels = slice(a // (s * s), b // (s * s))
+            u = centres[pixels, 0, None] + offsets[0, pixels]
+            v = centres[pixels, 1, None] + offsets[1, pixels]
+            return table.rays_uv(u.ravel(), v.ravel())[1]
 
         sub = self._radiance_blocks(idx.size * s * s, sub_rays, block=per * s * s)[0]
         e_per_radiance = self.sensor.e_per_radiance
@@ -129,7 +132,7 @@ class CameraView:
             radiance.ravel()[idx] = sub.reshape(idx.size, s * s).mean(axis=1)
             return (radiance * e_per_radiance).astype(np.float32)
         # The PSF acts on the optical image before the pixels integrate it (pixel_integration).
-        return integrate_pixels(radiance * e_per_radiance, idx, sub * e_per_radiance, s, sigma_px)
+        return integrate_pixels(radiance * e_per_radiance, idx, offsets, sub * e_per_radiance, s, sigma_px)
 
     @cached_property
     def noise(self) -> NoiseField | ColourNoise:
