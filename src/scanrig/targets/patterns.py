@@ -18,16 +18,19 @@ from scanrig.errors import InputError
 
 def _squares(xy: np.ndarray, squares: tuple[int, int], square_m: float, margin_m: float):
     """Column and row index (int64) of the chessboard square under each point, and whether the
-    point is on the chessboard (indices of points off it are meaningless)."""
-    ij = np.floor((xy - margin_m) / square_m)
-    i, j = ij[:, 0], ij[:, 1]
+    point is on the chessboard (indices of points off it are meaningless).
+
+    Each coordinate is handled as a column of its own: on (N, 2) points, often a view of (N, 3)
+    ones, numpy ran an inner loop per point (330 vs 60 us for 15 000 points).
+    """
+    i = np.floor((xy[:, 0] - margin_m) / square_m)
+    j = np.floor((xy[:, 1] - margin_m) / square_m)
     inside = i >= 0
     inside &= j >= 0
     inside &= i < squares[0]
     inside &= j < squares[1]
     with np.errstate(invalid="ignore"):
-        ij = ij.astype(np.int64)
-    return ij[:, 0], ij[:, 1], inside
+        return i.astype(np.int64), j.astype(np.int64), inside
 
 
 def _chessboard(i: np.ndarray, j: np.ndarray, inside: np.ndarray) -> np.ndarray:
@@ -93,18 +96,52 @@ def charuco_reflectance(xy: np.ndarray, squares: tuple[int, int], square_m: floa
     square = j * squares[0]
     square += i
     square[~inside] = n_sq
-    k = lookup[square]
+    k = np.take(lookup, square)
     idx = np.flatnonzero(k >= 0)
-    k = k[idx]
-    cell = np.take(xy, idx, axis=0)
-    cell -= np.take(marker_corners_m, k, axis=0)
-    cell = np.floor(cell / marker_m * n_cells).astype(np.int64)
-    cx, cy = cell[:, 0], cell[:, 1]
-    in_marker = (cx >= 0) & (cy >= 0) & (cx < n_cells) & (cy < n_cells)
+    k = np.take(k, idx)
+    cx, cy = (_marker_cell(xy[:, axis], idx, marker_corners_m[:, axis], k, marker_m, n_cells) for axis in (0, 1))
+    in_marker = cx >= 0
+    in_marker &= cy >= 0
+    in_marker &= cx < n_cells
+    in_marker &= cy < n_cells
     sel = np.flatnonzero(in_marker)
-    bits = np.asarray(marker_bits).reshape(-1)
-    value[idx[sel]] = bits[(k[sel] * n_cells + cy[sel]) * n_cells + cx[sel]]
+    cell = np.take(k, sel)
+    cell *= n_cells
+    cell += np.take(cy, sel)
+    cell *= n_cells
+    cell += np.take(cx, sel)
+    value[np.take(idx, sel)] = np.take(np.asarray(marker_bits).reshape(-1), cell)
     return value
+
+
+def _marker_cell(coord_m: np.ndarray, idx: np.ndarray, corner_m: np.ndarray, k: np.ndarray, marker_m: float,
+                 n_cells: int) -> np.ndarray:
+    """Marker cell index (int64) along one board axis of the points ``idx`` over markers ``k``.
+
+    Parameters
+    ----------
+    coord_m : ndarray of shape (N,)
+        One board coordinate of every point, metres.
+    idx : ndarray of shape (m,), int
+        The points inside a marker's square.
+    corner_m : ndarray of shape (n_markers,)
+        That coordinate of each marker's top-left corner, metres.
+    k : ndarray of shape (m,), int
+        The marker of each point.
+    marker_m : float
+        Marker side, metres.
+    n_cells : int
+        Cells along a marker side, its border included.
+
+    Returns
+    -------
+    ndarray of shape (m,), int64
+        Outside ``0..n_cells-1`` for points of the square outside its marker. One axis at a time:
+        on (m, 2) pairs numpy ran an inner loop per point.
+    """
+    rel = np.take(coord_m, idx)
+    rel -= np.take(corner_m, k)
+    return np.floor(rel / marker_m * n_cells).astype(np.int64)
 
 
 def circles_reflectance(xy: np.ndarray, centres_m: np.ndarray, spacing_m: float,
