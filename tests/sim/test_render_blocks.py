@@ -6,8 +6,12 @@ import numpy as np
 import pytest
 
 from scanrig.sim import laser
+from scanrig.sim import pixel_integration as pi
 from scanrig.sim.laser import GaussianBeams
+from scanrig.sim.pixel_rays import PixelRayTable, _to_world
 from scanrig.sim.render import _block_mean
+
+from .conftest import strong_camera
 
 
 @pytest.mark.parametrize("s", [1, 2, 3, 4, 7, 8, 9, 16, 17, 32])
@@ -65,3 +69,45 @@ def test_beamlets_sum_the_nearest_landings_within_their_reach():
     assert np.count_nonzero(want) > 200
     # rho² = |rel|² - z² cancels (z ≈ |rel|): the two roundings agree to about 1e-12
     np.testing.assert_allclose(total, want, rtol=1e-9, atol=0)
+
+
+def test_pixel_rays_by_planes_are_the_pairwise_forms_bits():
+    """PixelRayTable interpolates and rotates one coordinate at a time; the (N, 2) pair forms it
+    replaced give the same bits."""
+    rng = np.random.default_rng(11)
+    table = PixelRayTable(strong_camera())
+    xy = table.xy
+    h, w = xy.shape[:2]
+    q = np.column_stack([rng.uniform(-0.5, w - 0.5, 20000), rng.uniform(-0.5, h - 0.5, 20000)])
+    # the pair form: rows of (x, y) gathered and blended together
+    flat = xy.reshape(-1, 2)
+    u0 = np.minimum(np.clip(q[:, 0], 0.0, w - 1.0).astype(np.int64), w - 2)
+    v0 = np.minimum(np.clip(q[:, 1], 0.0, h - 1.0).astype(np.int64), h - 2)
+    fu, fv = (q[:, 0] - u0)[:, None], (q[:, 1] - v0)[:, None]
+    i00 = v0 * w + u0
+    top = flat[i00] + (flat[i00 + 1] - flat[i00]) * fu
+    bottom = flat[i00 + w] + (flat[i00 + w + 1] - flat[i00 + w]) * fu
+    pairs = top + (bottom - top) * fv
+    R = table._R
+    want = (pairs @ R[:, :2].T + R[:, 2]) / np.sqrt(np.einsum("ij,ij->i", pairs, pairs) + 1.0)[:, None]
+    assert np.array_equal(table.rays(q)[1], want)
+    assert np.array_equal(_to_world(pairs, R), want)
+
+
+def test_edge_taps_by_planes_are_the_pairwise_forms_bits():
+    """Edge sample offsets one axis per plane and the PSF taps tap-first: the same bits as the
+    (n, s², 2) offsets and (n, s², T) taps they replaced."""
+    rng = np.random.default_rng(12)
+    centres = np.column_stack([rng.integers(0, 1280, 500), rng.integers(0, 1024, 500)]).astype(np.float64)
+    s, reach, sigma_px = 8, 3, 0.6
+    shift = (centres[:, 1] * 65536.0 + centres[:, 0])[:, None] * pi.R2_STEPS[None, :]
+    shift = np.mod(shift, 1.0)
+    pairs = np.mod(pi._base_pattern(s)[None] + shift[:, None, :], 1.0) - 0.5
+    planes = pi.edge_sample_offsets(centres, s)
+    assert np.array_equal(np.moveaxis(planes, 0, 2), pairs)
+    table = pi._box_gauss_table(reach, sigma_px).T                      # (points, taps)
+    x = (pairs[:, :, 0] + 0.5) * pi._TABLE_POINTS
+    i = np.clip(x.astype(np.int64), 0, pi._TABLE_POINTS - 1)
+    f = (x - i)[..., None]
+    want = table[i] * (1.0 - f) + table[i + 1] * f                      # (n, s², T)
+    assert np.array_equal(np.moveaxis(pi._box_gauss_taps(planes[0], reach, sigma_px), 0, 2), want)
