@@ -68,7 +68,7 @@ def main() -> None:
                 continue
             ratios = [r.ratio for r in cv.cameras.values() if r is not None]
             store += ratios
-            warned = sum("odd and even views differ" in w for w in result.warnings)
+            warned = sum("x their stated sigma" in w for w in result.warnings)
             parts.append(" ".join(f"{r:.2f}" for r in ratios) + f" ({warned})")
         flex, sigma = results[1].bundle.state.flex_m, results[1].uncertainty.flex_std_m
         errors.append((flex - flex_m) / sigma)

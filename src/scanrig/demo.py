@@ -65,7 +65,7 @@ class DemoSettings:
     image_scale : float
         Factor on the simulated cameras' image size and focal length (1 = 1280 x 1024 px).
     cross_validate : bool
-        Odd/even cross-validation of the calibration.
+        Cross-validation of the calibration (halves of the shots calibrated apart).
     workers : int
         Processes for frame processing and detection.
     filter_max_points : int

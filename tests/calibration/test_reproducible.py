@@ -21,7 +21,7 @@ from scanrig.targets import cube, save_target
 
 #: Injected detection noise, pixels.
 SIGMA_PX = 0.1
-#: Shots of the cube: 3 per half, so the odd/even cross-validation runs as well.
+#: Shots of the cube: 3 per half, so the cross-validation runs as well.
 N_SHOTS = 6
 #: Starts of the rig.toml lines that record when it was written.
 DATE_LINES = ("date = ", "# written by")

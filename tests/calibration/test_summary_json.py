@@ -28,7 +28,7 @@ CAMERA_KEYS = {"name": str, "model": str, "width": int, "height": int, "param_na
                "center_std_m": list, "rotation_std_deg": float, "poorly_determined": list,
                "projection_sigma_px": dict, "cross_validation": dict}
 CROSS_VALIDATION_KEYS = {"measured_px": float, "predicted_px": float, "ratio": float, "dof": int,
-                         "max_px": float, "n_points": int}
+                         "max_px": float, "n_points": int, "splits": dict}
 
 
 @pytest.fixture(scope="module")
