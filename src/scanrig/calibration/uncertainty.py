@@ -251,7 +251,9 @@ def projection_uncertainty(result: BundleResult, unc: Uncertainty, camera: int, 
     cam = result.state.cameras[camera]
     layout = result.layout
     q, p_cam = grid_points_cam(cam, depth_m, samples)
-    p_world = cam.cam_from_world.inverse().apply(np.nan_to_num(p_cam))
+    # only the pixels whose point exists (projecting a stand-in point at the centre divides by 0)
+    inverted = np.all(np.isfinite(p_cam), axis=1)
+    p_world = cam.cam_from_world.inverse().apply(p_cam[inverted])
     _, _, J_pose, J_intr = cam.project_with_jacobians(p_world)
     index = layout.intrinsics[camera]
     cols = list(index[index >= 0])
@@ -261,6 +263,6 @@ def projection_uncertainty(result: BundleResult, unc: Uncertainty, camera: int, 
         J = np.concatenate([J, J_pose], axis=2)
     C = unc.covariance[np.ix_(cols, cols)]
     S = J @ C @ np.swapaxes(J, 1, 2)
-    sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
-    sigma[~np.all(np.isfinite(p_cam), axis=1)] = np.nan
+    sigma = np.full(len(q), np.nan)
+    sigma[inverted] = np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
     return q, sigma
