@@ -189,6 +189,18 @@ def test_traces_file_validation(tmp_path):
         read_traces(path)
 
 
+@pytest.mark.parametrize("raw, reason", [(b'{"format_version": 1', "is not valid JSON"),
+                                         (b'{"frames_done": "\xfe"}', "is not valid JSON"),  # not UTF-8
+                                         (b"[1, 2]", "must be a JSON object, got list")])
+def test_traces_metadata_that_is_not_a_json_object_is_named(tmp_path, raw, reason):
+    """A damaged metadata entry is a FileFormatError naming the file (bytes that are not UTF-8
+    raised UnicodeDecodeError before)."""
+    path = tmp_path / "traces.parquet"
+    pq.write_table(SCHEMA.empty_table().replace_schema_metadata({b"scanrig": raw}), path)
+    with pytest.raises(FileFormatError, match=f"traces.parquet: scanrig metadata {reason}"):
+        read_traces(path)
+
+
 def test_cli_detect_writes_traces_and_overlay(session, capsys):
     assert main(["detect", str(session), "--workers", "2", "--overlay", "f2"]) == 0
     out = capsys.readouterr().out

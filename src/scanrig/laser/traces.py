@@ -123,7 +123,9 @@ def read_traces(path: str | Path) -> tuple[pa.Table, dict]:
     raw = (table.schema.metadata or {}).get(_META_KEY)
     try:
         metadata = json.loads(raw) if raw else {}
-    except json.JSONDecodeError:
+    except ValueError:  # not JSON, or bytes that are not UTF-8 text
         raise FileFormatError(path, "scanrig metadata is not valid JSON") from None
+    if not isinstance(metadata, dict):
+        raise FileFormatError(path, f"scanrig metadata must be a JSON object, got {type(metadata).__name__}")
     extra = [c for c in table.column_names if c not in SCHEMA.names]
     return table.select(SCHEMA.names + extra), metadata
