@@ -27,6 +27,11 @@ ratios are correlated) and by the counts below 1e-2 and 1e-3 against their expec
 ``--first-seed 20 --seeds 420 --shots 20`` draws fresh sessions for that: the first 20 seeds are
 those the acceptance table was read from.
 
+Last, each camera's corners solved alone against the rig (``scanrig.calibration.camera_agreement``)
+over every session: the ratios, the smallest chance, how many were warned about (false alarms on
+these sessions, whose cameras see every shot at the same instant) and whether the chances are
+uniform.
+
 With ``--correlation`` it measures instead how independent the splits are (e.g.
 ``--correlation --seeds 3 --shots 10,20,40,80``): the corners' noise carried linearly through
 every half (exact at this noise: the halves' non-linear remainder is below 0.11 sigma), each
@@ -51,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2, kstest
 
+from scanrig.calibration.camera_agreement import P_WARN
 from scanrig.calibration.cross_validation import (RATIO_WARN, SPLITS, CameraCrossValidation, _projection_jacobian,
                                                   _sigma_modes, common_points, split_halves, whitening)
 from scanrig.calibration.pipeline import _solve_half, calibrate
@@ -82,6 +88,7 @@ def main() -> None:
     print("shots seed  time | per camera: pooled whitened ratio (dof); each split's whitened ratio; "
           "RMS measured / predicted px = plain ratio")
     checks = {}       # shots -> [Check]
+    agreements = []   # CameraAgreement of every camera that shares shots
     for n_shots in (int(s) for s in args.shots.split(",")):
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             rng = np.random.default_rng(seed)
@@ -94,6 +101,7 @@ def main() -> None:
             if cv is None:
                 print(f"{n_shots:5d} {seed:4d} {elapsed:5.1f}s | not run (a half could not be solved)")
                 continue
+            agreements += [a for a in result.camera_agreement.values() if a is not None]
             parts = []
             for name, r in cv.cameras.items():
                 if r is None:
@@ -122,6 +130,7 @@ def main() -> None:
     print(f"smallest chi-square tail probability: {p:.1e} ({shots} shots, seed {row.seed}, {row.camera}: ratio "
           f"{row.pooled.ratio:.2f} over {row.pooled.dof} directions)")
     print(_tail_summary(every))
+    print(_agreement_summary(agreements))
 
 
 @dataclass(frozen=True)
@@ -162,6 +171,17 @@ def _tail_summary(rows: list) -> str:
     ks = ", ".join(f"{name} {kstest(p[cameras == name], 'uniform').pvalue:.2f}" for name in sorted(set(cameras)))
     return (f"tail probabilities uniform? KS p-value per camera: {ks}; below 1e-2: {np.count_nonzero(p < 1e-2)} "
             f"(expected {1e-2 * len(p):.1f}), below 1e-3: {np.count_nonzero(p < 1e-3)} (expected {1e-3 * len(p):.2f})")
+
+
+def _agreement_summary(agreements: list) -> str:
+    """Each camera's corners alone against the rig over every session: the ratios, the smallest
+    probability, the warnings (false alarms on these clean sessions) and a KS test of uniformity."""
+    ratio = np.array([a.ratio for a in agreements])
+    p = np.array([a.p_value for a in agreements])
+    return (f"cameras apart (corners alone vs in the rig): ratio median {np.median(ratio):.2f} "
+            f"[{ratio.min():.2f}, {ratio.max():.2f}] over {len(p)} cameras; smallest probability {p.min():.1e}; "
+            f"warned (below {P_WARN:g}) {np.count_nonzero(p < P_WARN)}; below 1e-2: {np.count_nonzero(p < 1e-2)} "
+            f"(expected {1e-2 * len(p):.1f}); uniform? KS p-value {kstest(p, 'uniform').pvalue:.2f}")
 
 
 def _outside(ratios: np.ndarray) -> int:

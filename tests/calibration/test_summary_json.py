@@ -26,9 +26,10 @@ TOP_KEYS = {"format_version": int, "target_kind": str, "n_shots": int, "world_fr
 CAMERA_KEYS = {"name": str, "model": str, "width": int, "height": int, "param_names": list, "params": list,
                "params_std": list, "rms_px": float, "n_observations": int, "n_outliers": int, "n_views": int,
                "center_std_m": list, "rotation_std_deg": float, "poorly_determined": list,
-               "projection_sigma_px": dict, "cross_validation": dict}
+               "projection_sigma_px": dict, "cross_validation": dict, "camera_agreement": dict}
 CROSS_VALIDATION_KEYS = {"measured_px": float, "predicted_px": float, "ratio": float, "dof": int,
                          "max_px": float, "n_points": int, "splits": dict}
+AGREEMENT_KEYS = {"rms_alone_px": float, "rms_rig_px": float, "ratio": float, "dof": float, "p_value": float}
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +60,8 @@ def test_summary_json_keys_and_types(written):
     for cam in summary["cameras"]:
         _check_types(cam, CAMERA_KEYS, cam["name"])
         _check_types(cam["cross_validation"], CROSS_VALIDATION_KEYS, f"{cam['name']}.cross_validation")
+        _check_types(cam["camera_agreement"], AGREEMENT_KEYS, f"{cam['name']}.camera_agreement")
+        assert cam["camera_agreement"]["ratio"] == result.camera_agreement[cam["name"]].ratio
         assert set(cam["projection_sigma_px"]) == {"depth_m", "median", "max"}
         assert len(cam["params"]) == len(cam["params_std"]) == len(cam["param_names"])
         assert all(isinstance(v, float) for v in cam["params"] + cam["params_std"] + cam["center_std_m"])
@@ -108,7 +111,7 @@ def test_summary_json_without_cross_validation(tmp_path, written):
     write_session_outputs(tmp_path, result, obs, plots=False)
     summary = json.loads((tmp_path / REPORT_DIR / "summary.json").read_text(encoding="utf-8"))
     assert summary["cross_validation_reference_camera"] is None
-    assert all(cam["cross_validation"] is None for cam in summary["cameras"])
+    assert all(cam["cross_validation"] is None and cam["camera_agreement"] is None for cam in summary["cameras"])
 
 
 def test_dropped_views_give_one_line_per_camera():

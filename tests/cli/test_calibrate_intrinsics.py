@@ -96,6 +96,10 @@ def test_caliscope_rig_with_its_own_intrinsics_gives_its_relative_poses(tmp_path
 
 @pytest.mark.slow
 def test_caliscope_rig_alone_says_per_camera_that_its_views_do_not_fix_the_intrinsics(tmp_path, capsys):
+    """Without its own intrinsics: every camera says in one line that these views do not fix its
+    intrinsics, and every camera whose fx, fy, cx or cy lies more than 3 stated sigmas from the
+    rig's own is flagged by the cross-validation, here by its corners fitting far better alone
+    than in the rig (the rig's frames are not simultaneous: 0.35-0.8 px alone, 0.8-1.3 px in it)."""
     root = caliscope_session(tmp_path / "rig")
     reference = caliscope_reference()
     assert main(["calibrate", str(root), "--corners", str(root / "corners.csv"), "--no-plots"]) == 0
@@ -107,10 +111,17 @@ def test_caliscope_rig_alone_says_per_camera_that_its_views_do_not_fix_the_intri
                                  "or --intrinsics FILE)")
     rig, info, _ = load_rig_info(root / "rig.toml")
     _print_differences("without --intrinsics", relative_pose_differences(rig, reference))
+    flagged = {name for name in CAMERAS for line in out.splitlines()
+               if line.startswith(f"WARNING: {name}: ") and ("stated sigma" in line or "in the rig" in line)}
+    beyond = set()
     for name in CAMERAS:
         z = (rig[name].params[:4] - reference[name].params[:4]) / np.array(info[name]["params_std"][:4])
         print(f"{name}: fx fy cx cy minus the rig's own, in stated sigmas: {np.round(z, 1)}")
-    print("\n".join(line for line in out.splitlines() if "cross-validation" in line or "disagree" in line))
+        if np.max(np.abs(z)) > 3.0:
+            beyond.add(name)
+    print("\n".join(line for line in out.splitlines() if "cross-validation" in line or "cameras apart" in line))
+    assert beyond, "the rig's views alone now give every camera's intrinsics within 3 sigma of the rig's own"
+    assert beyond <= flagged, out
 
 
 @pytest.fixture(scope="module")

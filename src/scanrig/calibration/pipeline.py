@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
+from scanrig.calibration.camera_agreement import CameraAgreement, agreement_warnings, camera_agreement
 from scanrig.calibration.cross_validation import (SPLITS, CrossValidation, combine_splits, compare_halves,
                                                   cross_validation_warnings, split_halves)
 from scanrig.calibration.flex_check import flex_warning
@@ -54,6 +55,7 @@ class CalibrationResult:
     working_distance_m: dict
     projection_sigma_px: dict
     cross_validation: CrossValidation | None = None
+    camera_agreement: dict[str, CameraAgreement | None] | None = None
     warnings: list = field(default_factory=list)
     not_found: list = field(default_factory=list)
     known_intrinsics: dict = field(default_factory=dict)
@@ -106,7 +108,8 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     cross_validate : bool
         Also cross-validate: calibrate the halves of each split of the shots
         (:data:`~scanrig.calibration.cross_validation.SPLITS`) apart and compare them (the splits
-        whose halves have :data:`MIN_SHOTS_PER_HALF` shots and can be solved).
+        whose halves have :data:`MIN_SHOTS_PER_HALF` shots and can be solved), and solve each
+        camera's corners alone against the rig (:mod:`scanrig.calibration.camera_agreement`).
     known_intrinsics : dict, optional
         ``camera -> KnownIntrinsics`` (:mod:`scanrig.calibration.intrinsics_prior`): these
         cameras keep their model and intrinsics, held fixed or, with ``refine_intrinsics``,
@@ -153,6 +156,8 @@ def calibrate(obs: Observations, target: Target, model: str | dict = "opencv5",
     if cross_validate:
         result.cross_validation = _cross_validate(result, fixed, priors)
         result.warnings += cross_validation_warnings(result.cross_validation)
+        result.camera_agreement = camera_agreement(bundle, unc.covariance, target, fixed, priors)
+        result.warnings += agreement_warnings(result.camera_agreement)
     return result
 
 

@@ -1,8 +1,9 @@
 """The calibration report: a one-screen text summary, the same as JSON, and the outlier list.
 
 ``summary.json`` (docs/file-formats.md) carries per camera its model, parameters and their σ,
-RMS, corners used and rejected, projection σ and cross-validation, and the warnings, each a
-single line naming its camera and cause, exactly as printed; for a flexible target
+RMS, corners used and rejected, projection σ, cross-validation, its corners alone against the rig,
+and the warnings, each a single line naming its camera and cause, exactly as printed; for a
+flexible target
 (``flex = true``) also the board's two flex terms and their σ.
 """
 
@@ -14,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from scanrig.calibration.camera_agreement import CAUSES as AGREEMENT_CAUSES
+from scanrig.calibration.camera_agreement import P_WARN, agreement_warnings
 from scanrig.calibration.cross_validation import CAUSES, RATIO_WARN, cross_validation_warnings
 from scanrig.io.atomic import atomic_write, write_text_atomic
 
@@ -60,6 +63,7 @@ def format_summary(result) -> str:
                      "split whose halves can be solved alone)")
     else:
         lines += _cross_validation_lines(cv)
+    lines += _agreement_lines(result.camera_agreement)
     if result.not_found:
         lines.append(f"target not found in {len(result.not_found)} image(s): "
                      + ", ".join(f"{c}/{s}" for c, s in result.not_found[:10])
@@ -125,6 +129,22 @@ def _cross_validation_lines(cv) -> list[str]:
     return lines
 
 
+def _agreement_lines(agreement) -> list[str]:
+    """summary.txt's lines of each camera's corners alone against the rig (none for one camera)."""
+    if not agreement or all(a is None for a in agreement.values()):
+        return []
+    lines = ["cameras apart: each camera's corners with target poses of its own, against the rig's shared poses"]
+    for name, a in agreement.items():
+        lines.append(f"cameras apart {name}: " + ("shares no shot with another camera" if a is None else
+                     f"RMS {a.rms_alone_px:.3f} px alone, {a.rms_rig_px:.3f} px in the rig (ratio {a.ratio:.2f} "
+                     f"over {a.dof:.0f} constraints, chance {a.p_value:.2g}; 1 when the cameras agree)"))
+    if agreement_warnings(agreement):
+        lines.append(f"a chance below {P_WARN:g} means the cameras saw the target in different places in one "
+                     "shot. Likely causes:")
+        lines += [f"  - {cause}" for cause in AGREEMENT_CAUSES]
+    return lines
+
+
 def summary_dict(result) -> dict:
     """The content of ``summary.json`` (docs/file-formats.md): plain JSON types only."""
     b, unc, cv = result.bundle, result.uncertainty, result.cross_validation
@@ -156,6 +176,7 @@ def summary_dict(result) -> dict:
                 **_check_dict(check),
                 "splits": {split: None if cameras[cam.name] is None else _check_dict(cameras[cam.name])
                            for split, cameras in cv.splits.items()}},
+            "camera_agreement": _agreement_dict((result.camera_agreement or {}).get(cam.name)),
         })
     out = {
         "format_version": SUMMARY_FORMAT_VERSION,
@@ -180,6 +201,14 @@ def _check_dict(check) -> dict:
     """One camera's cross-validation figures (pooled, or of one split) as JSON."""
     return {"measured_px": check.measured_px, "predicted_px": check.predicted_px, "ratio": check.ratio,
             "dof": check.dof, "max_px": check.max_px, "n_points": check.n_points}
+
+
+def _agreement_dict(agreement) -> dict | None:
+    """One camera's corners alone against the rig as JSON (None when not checked)."""
+    if agreement is None:
+        return None
+    return {"rms_alone_px": agreement.rms_alone_px, "rms_rig_px": agreement.rms_rig_px, "ratio": agreement.ratio,
+            "dof": agreement.dof, "p_value": agreement.p_value}
 
 
 def write_summary_json(result, path: str | Path) -> None:
