@@ -3,7 +3,20 @@
 import numpy as np
 import pytest
 
-from scanrig.laser.colour_check import FEWER_FACTOR, colour_advice, colour_shown, equal_channels, grey_frames
+from scanrig.errors import InputError
+from scanrig.laser.colour_check import (
+    FEWER_FACTOR,
+    LEAST_STRIPE_LINES,
+    colour_advice,
+    colour_shown,
+    dips_more_than_rises,
+    equal_channels,
+    grey_frames,
+    laser_light,
+)
+from scanrig.laser.image import prepare_image
+from scanrig.laser.spots import detect_spots
+from scanrig.laser.stripes import detect_stripe
 
 
 def _grey_in_colour(seed: int = 0, shape=(100, 70)) -> np.ndarray:
@@ -87,3 +100,83 @@ def test_grey_frames_show_no_colour_and_are_not_detected_again(grey):
 
 def test_the_advice_names_the_option_and_the_session_key():
     assert colour_advice("blue") == "use --color blue (or laser_color = 'blue' in session.toml)"
+
+
+# --- the library detectors' own check (check_laser_colour) ------------------------------------
+
+
+def _swapped(frame: np.ndarray) -> np.ndarray:
+    """RGB stored as BGR: a red laser in the blue channel."""
+    return np.ascontiguousarray(frame[:, :, ::-1])
+
+
+@pytest.fixture(scope="module")
+def rendered_stripes():
+    """An over-exposed red stripe on printed paper (480 x 640) and its laser-off frame."""
+    from tests.laser.colour_synth import stripe_frames
+
+    return stripe_frames(np.random.default_rng(0))[:2]
+
+
+@pytest.fixture(scope="module")
+def rendered_spots():
+    """A grid of over-exposed red spots on printed paper (480 x 640) and its laser-off frame."""
+    from tests.laser.colour_synth import spot_frames
+
+    return spot_frames(np.random.default_rng(0))[:2]
+
+
+def test_laser_light_counts_bright_rank_0_candidates_on_enough_lines():
+    import pyarrow as pa
+
+    lines = LEAST_STRIPE_LINES
+    table = pa.table({"rank": np.r_[np.zeros(lines), np.ones(lines)].astype(np.int32),
+                      "peak": np.r_[np.full(lines - 1, 200.0), 50.0, np.full(lines, 300.0)]})
+    assert laser_light(table, stripes=True) == 200.0 * (lines - 1) + 50.0
+    assert laser_light(table, stripes=True, least_peak=100.0) == 0.0  # bright on one line too few
+    assert laser_light(table, stripes=False, least_peak=100.0) == 200.0 * (lines - 1) + 300.0 * lines
+
+
+@pytest.mark.parametrize("dark", [False, True], ids=["no dark", "dark"])
+def test_a_laser_of_another_colour_dips_more_than_it_rises(rendered_stripes, dark):
+    """Red minus the others of a red stripe rises; of the stripe in the blue channel it dips (by
+    the box sums of every eighth row and column)."""
+    on, off = rendered_stripes
+    off = off if dark else None
+    assert not dips_more_than_rises(prepare_image(on, "red", off), 6.0)
+    assert dips_more_than_rises(prepare_image(_swapped(on), "red", None if off is None else _swapped(off)), 6.0)
+
+
+@pytest.mark.parametrize(("detect", "dark"), [(detect_stripe, False), (detect_stripe, True), (detect_spots, True)],
+                         ids=["stripes, no dark", "stripes, dark", "spots, dark"])
+def test_the_detectors_name_the_colour_the_frame_shows(rendered_stripes, rendered_spots, detect, dark):
+    """Red asked of frames whose red laser is in the blue channel: an error that names the
+    argument, what was asked and the channel that shows the laser; the right colour's frames
+    give their candidates. (The spots without their laser-off frame are not checked: there red
+    minus the others dips at the spots about as much as it rises on the printed dots' edges.)"""
+    on, off = rendered_stripes if detect is detect_stripe else rendered_spots
+    off = off if dark else None
+    assert len(detect(on, color="red", dark=off)) > 0
+    swapped = {"image": _swapped(on), "dark": None if off is None else _swapped(off)}
+    with pytest.raises(InputError, match=r"^color='red': no red laser in this frame; its blue channel shows one "
+                                         r"\(\d+ DN of laser light\): use color='blue' \(red and blue are swapped "
+                                         r"where RGB data were stored as BGR\)$"):
+        detect(swapped["image"], color="red", dark=swapped["dark"])
+    detect(swapped["image"], color="red", dark=swapped["dark"], check_color=False)  # not checked: no error
+
+
+def test_the_detections_colour_shown_asks_for_are_not_checked(rendered_stripes):
+    """colour_shown detects the frame in every other colour (as ``scanrig detect`` does): those
+    wrong colours are its question, not an error."""
+    on, off = rendered_stripes
+    assert colour_shown(on, "red", lambda colour: len(detect_stripe(on, color=colour, dark=off)), 0.0) is None
+    with pytest.raises(InputError, match="its red channel shows one"):
+        detect_stripe(on, color="blue", dark=off)
+
+
+def test_grey_frames_are_not_checked(rendered_stripes):
+    """A grey frame (its luma) with a colour laser asked: no other colour to compare."""
+    import cv2
+
+    on, off = (cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in rendered_stripes)
+    assert len(detect_stripe(on, color="green", dark=off)) > 0

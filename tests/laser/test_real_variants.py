@@ -17,7 +17,7 @@ import pytest
 
 import scanrig
 from scanrig.cli.main import main
-from scanrig.errors import ShapeError
+from scanrig.errors import InputError, ShapeError
 from scanrig.io.session import read_image
 from tests.data_paths import real_data
 
@@ -299,16 +299,46 @@ def _wrong_colour_handled(call, reference, baseline) -> None:
     assert stripe_share(table, *reference) >= baseline - PHOTOMETRIC_MARGIN
 
 
-# The library's detect_stripe does not check the laser colour against the frame (that takes a
-# detection in every other colour); ``scanrig detect`` does, once per camera (the session tests below).
-@pytest.mark.xfail(strict=True, reason="BGR frames with color='red' (the laser in the blue channel): with the "
-                   "laser-off frame, 0 candidates and no error (a silent empty result); without it, 254 candidates "
-                   "and rank 0 on the stripe in 0 of 1,031 rows (red minus the others is negative on the stripe)")
 @pytest.mark.parametrize("use_dark", [False, True], ids=["no dark", "dark"])
 def test_swapped_channels_with_the_wrong_colour_say_so(frames, reference, baseline, use_dark):
+    """BGR frames with ``color="red"`` (the laser in the blue channel). Before: with the laser-off
+    frame 0 candidates and no error; without it 254 candidates and rank 0 on the stripe in 0 of
+    1,031 rows."""
     on, off = (swapped(f) for f in frames)
     _wrong_colour_handled(lambda: scanrig.detect_stripe(on, color="red", dark=off if use_dark else None),
                           reference, baseline[use_dark])
+
+
+@pytest.mark.parametrize("use_dark", [False, True], ids=["no dark", "dark"])
+def test_the_wrong_colour_error_names_the_argument_and_the_channel(frames, use_dark):
+    on, off = (swapped(f) for f in frames)
+    with pytest.raises(InputError, match=r"^color='red': no red laser in this frame; its blue channel shows one "
+                                         r"\(\d+ DN of laser light\): use color='blue' \(red and blue are swapped "
+                                         r"where RGB data were stored as BGR\)$"):
+        scanrig.detect_stripe(on, color="red", dark=off if use_dark else None)
+
+
+PATTERN = real_data("ciclop-laser-stripes") / "laser_on_pattern"
+
+
+@pytest.mark.parametrize("use_dark", [False, True], ids=["no dark", "dark"])
+@pytest.mark.parametrize("name", ["laser-0-255-255-8", "laser-0-255-255-8-x"])
+def test_the_right_colour_on_the_board_is_not_questioned(name, use_dark):
+    """The board's two stripe frames with ``color="red"``: detected, no error (red's rank-0 peaks
+    reach half the clip level on 548-565 lines; blue's and green's on 95 at most)."""
+    on = read_image(PATTERN / f"{name}.png")
+    dark = read_image(PATTERN / f"{name.replace('laser-', 'laser-background-', 1)}.png") if use_dark else None
+    assert len(scanrig.detect_stripe(on, color="red", dark=dark)) > 0
+
+
+@pytest.mark.parametrize("color", ["green", "blue"])
+@pytest.mark.parametrize("path", [FOLDER / "laser_background.png", FOLDER / "texture.png", PATTERN / "pattern.png"],
+                         ids=["bust, laser off", "bust, texture", "board, laser off"])
+def test_frames_without_the_laser_name_no_colour(path, color):
+    """The Ciclop's frames without the laser, asked for a green or blue one: the scene's warm
+    colours and printed texture find more red than green or blue, but no candidate bright enough
+    to be a laser (half the clip level on 2 lines at most), so no colour is named."""
+    scanrig.detect_stripe(read_image(path), color=color)
 
 
 def test_grey_in_three_channels_with_a_colour_laser_is_the_grey_frame(frames, reference):

@@ -5,15 +5,22 @@ A colour laser's signal is its channel minus the mean of the two others
 (:mod:`scanrig.laser.image`): in a grey frame stored as three equal channels it is 0 everywhere,
 and with red and blue swapped the stripe is negative. Neither is an error the detectors can see
 on their own, so they are checked here: :func:`grey_frames` turns equal channels into the grey
-frame they are, and :func:`colour_shown` names the colour that finds far more laser than the one
-asked for.
+frame they are, :func:`colour_shown` names the colour that finds far more laser than the one
+asked for, and :func:`check_laser_colour` raises when it does, for the library's detectors. That
+takes a detection in every other colour, so it runs only where the requested colour found no
+bright laser and its signal dips below its background more than it rises above it
+(:func:`dips_more_than_rises`), as a laser of another colour makes it do.
 """
 
 from __future__ import annotations
 
+import contextvars
+import functools
 from collections.abc import Callable
 
 import numpy as np
+
+from scanrig.errors import InputError
 
 #: The colours a colour frame's laser may have (one channel each).
 CHANNEL_COLOURS = ("red", "green", "blue")
@@ -24,6 +31,28 @@ CHANNEL_COLOURS = ("red", "green", "blue")
 FEWER_FACTOR = 3.0
 #: Every this-many-th row is compared first; the whole frame only when those rows are equal.
 _SAMPLE_ROW_STEP = 32
+#: A colour finds a stripe only with a rank-0 candidate on at least this many scan lines (spots:
+#: one candidate): fewer are texture.
+LEAST_STRIPE_LINES = 20
+#: A candidate counts as laser light for :func:`check_laser_colour` only with a fitted peak of at
+#: least this fraction of the clip level. Measured on the real Ciclop frames (8-bit): the red
+#: laser's rank-0 peaks reach it on 548-716 scan lines (bust, pattern, with and without the
+#: laser-off frame); on the frames without the laser (the scene's warm colours and printed
+#: texture) no colour's do on more than 2 lines (14 at 0.35, 59 at 0.25).
+BRIGHT_FRACTION = 0.5
+#: A stripe detection with candidates that bright on at least this fraction of the frame's scan
+#: lines (of its smaller side) is not questioned. Where a laser of another colour turns white in
+#: its core, every colour finds that part of it (:mod:`scanrig.laser.clipped_runs`): on the Ciclop
+#: board with the laser-off frame, green or blue found bright candidates on 30-95 of the 960 rows,
+#: where red finds 548-565.
+TRUSTED_LINES_FRACTION = 1.0 / 8.0
+#: :func:`dips_more_than_rises` reads the 3 x 3 box sums of every this-many-th row and column (the
+#: same decision as every 8th or 16th on the Ciclop and rendered frames, 150 frame and colour
+#: pairs: 34 x 60 lines of a 1920 x 1080 frame).
+_DIP_LINE_STEP = 32
+#: True while :func:`colour_shown` asks its ``found_with`` for other colours: the detections made
+#: there are comparisons, not checked themselves (:func:`check_laser_colour`).
+_COMPARING = contextvars.ContextVar("comparing_colours", default=False)
 
 
 def equal_channels(image: np.ndarray) -> bool:
@@ -99,13 +128,161 @@ def colour_shown(image: np.ndarray, color: str, found_with: Callable[[str], floa
     """
     if image.ndim != 3 or equal_channels(image):
         return None
-    others = {other: found_with(other) for other in CHANNEL_COLOURS if other != color}
-    best = max(others, key=others.get)
-    if others[best] < least or others[best] <= FEWER_FACTOR * found_with(color):
-        return None
+    comparing = _COMPARING.set(True)
+    try:
+        others = {other: found_with(other) for other in CHANNEL_COLOURS if other != color}
+        best = max(others, key=others.get)
+        if others[best] < least or others[best] <= FEWER_FACTOR * found_with(color):
+            return None
+    finally:
+        _COMPARING.reset(comparing)
     return best
 
 
 def colour_advice(colour: str) -> str:
     """How to ask for ``colour``: ``"use --color red (or laser_color = 'red' in session.toml)"``."""
     return f"use --color {colour} (or laser_color = {colour!r} in session.toml)"
+
+
+def laser_light(table, stripes: bool, least_peak: float = 0.0) -> float:
+    """The laser light a detection found, DN: the fitted peaks of at least ``least_peak`` of its
+    rank-0 candidates summed (stripes: one stripe crosses a scan line once; 0 where such
+    candidates lie on fewer than ``LEAST_STRIPE_LINES`` lines), or of all its candidates (spots: a
+    frame may hold several).
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        One frame's detections (``traces.parquet`` columns).
+    stripes : bool
+        Stripe candidates (else spots).
+    least_peak : float
+        Candidates with a lower fitted peak are not counted, DN.
+    """
+    peak = _bright_peaks(table, stripes, least_peak)
+    return float(peak.sum()) if not stripes or peak.size >= LEAST_STRIPE_LINES else 0.0
+
+
+def _bright_peaks(table, stripes: bool, least_peak: float) -> np.ndarray:
+    """The fitted peaks of at least ``least_peak`` DN of the rank-0 candidates (stripes) or of all
+    candidates (spots) of ``table``, ``(n,)``."""
+    peak = table["peak"].to_numpy()
+    counted = peak >= least_peak
+    if stripes:
+        counted &= table["rank"].to_numpy() == 0
+    return peak[counted]
+
+
+def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bool, k_detect: float) -> None:
+    """Raise when a colour frame's laser shows in another channel than ``color``'s.
+
+    Laser light counts only from candidates whose peak reaches ``BRIGHT_FRACTION`` of the clip
+    level (:func:`laser_light`): a scene of warm colours without the laser shows as much red
+    texture as a red laser, but no candidate that bright. A detection that found such light (on
+    ``TRUSTED_LINES_FRACTION`` of the frame's scan lines at least, for stripes) is taken as it is:
+    the usual case, in which nothing more is computed. Otherwise, where the signal dips below its
+    background more than it rises above it (:func:`dips_more_than_rises`), as a laser of another
+    colour makes it do, every other colour is detected and one that finds more than
+    ``FEWER_FACTOR`` times the light of ``color`` is named (:func:`colour_shown`). Not checked:
+    grey frames and grey lasers, and detections made for :func:`colour_shown` itself.
+
+    Parameters
+    ----------
+    li : LaserImage
+        The frame's signal in ``color`` (:func:`~scanrig.laser.image.prepare_image`).
+    color : str
+        The requested laser colour.
+    table : pyarrow.Table
+        The detections in ``color``.
+    detect_with : callable
+        ``detect_with(colour) -> pyarrow.Table``: the frame's detections in another colour.
+    stripes : bool
+        Stripe detections (else spots).
+    k_detect : float
+        The detection threshold, in noise σ of the 3 x 3 box sum.
+
+    Raises
+    ------
+    InputError
+        ``"color='red': no red laser in this frame; its blue channel shows one (103454 DN of laser
+        light): use color='blue' (red and blue are swapped where RGB data were stored as BGR)"``.
+    """
+    if li.colour is None or _COMPARING.get():
+        return
+    least_peak = BRIGHT_FRACTION * float(li.colour.clip_level.max())
+    bright = _bright_peaks(table, stripes, least_peak).size
+    if bright >= (TRUSTED_LINES_FRACTION * min(li.signal.shape) if stripes else 1):
+        return
+    if not dips_more_than_rises(li, k_detect):
+        return
+    light = functools.cache(lambda colour: laser_light(detect_with(colour), stripes, least_peak))
+    found = laser_light(table, stripes, least_peak)
+    best = colour_shown(li.colour.image, color, lambda colour: found if colour == color else light(colour), 0.0)
+    if best is not None:
+        what = (f"no {color} laser in this frame" if found == 0 else
+                f"{color} finds {light(best) / found:.0f} times less laser light than {best} in this frame")
+        raise InputError(f"color={color!r}: {what}; its {best} channel shows one ({light(best):.0f} DN of laser "
+                         f"light): use color={best!r} (red and blue are swapped where RGB data were stored as BGR)")
+
+
+def dips_more_than_rises(li, k_detect: float) -> bool:
+    """Whether the laser signal holds more light below its background than above it.
+
+    A laser of another colour than the signal's is a dip: channel ``k`` minus the mean of the
+    others loses half of what the laser adds to one of them. On every ``_DIP_LINE_STEP``-th row
+    and column, the 3 x 3 box sums' highest and lowest (the detectors' matched filter) count where
+    they pass the detection test, above or below the background; the dips' excess summed over the
+    lines is compared with the rises'. 1-2 ms of CPU on a 1920 x 1080 frame (reading the sampled
+    columns costs most), so asked only where no bright laser was found.
+
+    Parameters
+    ----------
+    li : LaserImage
+        A colour laser's signal.
+    k_detect : float
+        The detection threshold, in noise σ of the box sum.
+
+    Returns
+    -------
+    bool
+    """
+    light = {1.0: 0.0, -1.0: 0.0}  # rises, dips
+    for along_rows in (True, False):
+        lines, where_high, where_low = _box_extremes(li.signal, _DIP_LINE_STEP, along_rows)
+        for (pos, box), sign in ((where_high, 1.0), (where_low, -1.0)):
+            u, v = (pos, lines) if along_rows else (lines, pos)
+            excess = sign * (box - 9.0 * li.background_at(u, v))
+            noise = 3.0 * np.maximum(li.noise_at(u, v), li.clutter_at(u, v))
+            light[sign] += float(excess[excess > k_detect * noise].sum())
+    return light[-1.0] > light[1.0]
+
+
+def _box_extremes(signal: np.ndarray, step: int, along_rows: bool):
+    """The highest and lowest 3 x 3 box sum along every ``step``-th row (or column) of ``signal``.
+
+    Parameters
+    ----------
+    signal : (H, W) array
+        DN.
+    step : int
+    along_rows : bool
+        Rows (else columns).
+
+    Returns
+    -------
+    lines : (n,) int array
+        The rows (columns): the box sums' centre lines, ``1, 1 + step, ...``.
+    (pos, box), (pos, box) : pairs of (n,) arrays
+        Position along the line (int, the box's centre) and value (DN) of each line's highest, then
+        lowest box sum.
+    """
+    lines = np.arange(1, signal.shape[0 if along_rows else 1] - 1, step)
+    three = lines[:, None] + np.arange(-1, 2)  # each line and its neighbours
+    if along_rows:
+        sums = signal[three].sum(axis=1, dtype=np.float32)  # (n, W)
+    else:  # the columns picked from each row: contiguous reads, not one cache line per pixel
+        sums = signal[:, three.ravel()].reshape(signal.shape[0], lines.size, 3).sum(axis=2, dtype=np.float32).T
+    box = sums[:, :-2] + sums[:, 1:-1] + sums[:, 2:]
+    index = np.arange(lines.size)
+    high, low = box.argmax(axis=1), box.argmin(axis=1)
+    return lines, (high + 1, box[index, high]), (low + 1, box[index, low])

@@ -7,8 +7,11 @@ reconstruction, where other cameras can vote.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
+from scanrig.laser.colour_check import check_laser_colour
 from scanrig.laser.colour_fit import fit_clipped_spots
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_2d, parameter_covariance
 from scanrig.laser.image import prepare_image
@@ -34,6 +37,7 @@ def detect_spots(
     max_candidates: int = 32,
     camera: str = "",
     frame: str = "",
+    check_color: bool = True,
 ):
     """All laser-spot candidates of one frame, each with a sub-pixel centre and its uncertainty.
 
@@ -63,6 +67,11 @@ def detect_spots(
         At most this many candidates (the strongest) are fitted.
     camera, frame : str
         Written into every row.
+    check_color : bool
+        Raise when the frame's laser shows in another channel than ``color``'s
+        (:func:`~scanrig.laser.colour_check.check_laser_colour`: questioned only where no bright
+        laser was found, so a right-colour frame costs some 15 µs more); False for a caller that
+        checks its frames' colour itself, as ``scanrig detect`` does once per camera.
 
     Returns
     -------
@@ -74,7 +83,8 @@ def detect_spots(
     Raises
     ------
     ShapeError, InputError
-        On an image of the wrong type or shape, or invalid options.
+        On an image of the wrong type or shape, or invalid options; InputError also where another
+        colour than ``color`` finds far more laser light (``check_color``).
 
     Examples
     --------
@@ -84,13 +94,27 @@ def detect_spots(
     >>> [round(x, 2) for x in (t["u"][0].as_py(), t["v"][0].as_py())]
     [41.0, 31.0]
     """
+    detect = functools.partial(_detect_spots, image, dark=dark, roi=roi, noise_sigma=noise_sigma,
+                               saturation_level=saturation_level, k_detect=k_detect,
+                               min_separation_px=min_separation_px, max_width_px=max_width_px,
+                               max_candidates=max_candidates, camera=camera, frame=frame)
+    table, li = detect(color)
+    if check_color:
+        check_laser_colour(li, color, table, lambda other: detect(other)[0], False, k_detect)
+    return table
+
+
+def _detect_spots(image, color, *, dark, roi, noise_sigma, saturation_level, k_detect, min_separation_px,
+                  max_width_px, max_candidates, camera, frame):
+    """:func:`detect_spots` without the colour check: the table and the frame's
+    :class:`~scanrig.laser.image.LaserImage`."""
     li = prepare_image(image, color, dark, roi, saturation_level, noise_sigma)
     cand = find_candidates(li, "2d", k_detect=k_detect)
     cand = cand.take(suppress_2d(cand.u, cand.v, cand.score, min_separation_px))
     if cand.u.size > max_candidates:
         cand = cand.take(np.argsort(-cand.score, kind="stable")[:max_candidates])
     if cand.u.size == 0:
-        return empty_table()
+        return empty_table(), li
     cols = _fit_spots(li, cand, max_width_px)
     keep = suppress_2d(cols["u"], cols["v"], cols["peak"], min_separation_px)  # seeds that met
     cols = {k: a[keep] for k, a in cols.items()}
@@ -100,7 +124,7 @@ def detect_spots(
     cols["line"] = np.full(order.size, -1, np.int32)
     cols["u"] = cols["u"] + li.origin[0]
     cols["v"] = cols["v"] + li.origin[1]
-    return make_table("spot", cols, camera, frame)
+    return make_table("spot", cols, camera, frame), li
 
 
 def _fit_spots(li, cand: Candidates, max_width_px: float) -> dict[str, np.ndarray]:

@@ -15,12 +15,14 @@ line.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.clipped_runs import fit_unknown_runs, unknown_laser
+from scanrig.laser.colour_check import check_laser_colour
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import (
@@ -70,6 +72,7 @@ def detect_stripe(
     max_per_line: int = 8,
     camera: str = "",
     frame: str = "",
+    check_color: bool = True,
 ):
     """All laser-stripe candidates of one frame: every peak on every scan line.
 
@@ -101,6 +104,11 @@ def detect_stripe(
         At most this many peaks per line (the strongest) are fitted.
     camera, frame : str
         Written into every row.
+    check_color : bool
+        Raise when the frame's laser shows in another channel than ``color``'s
+        (:func:`~scanrig.laser.colour_check.check_laser_colour`: questioned only where no bright
+        laser was found, so a right-colour frame costs some 15 µs more); False for a caller that
+        checks its frames' colour itself, as ``scanrig detect`` does once per camera.
 
     Returns
     -------
@@ -114,7 +122,8 @@ def detect_stripe(
     Raises
     ------
     ShapeError, InputError
-        On an image of the wrong type or shape, or invalid options.
+        On an image of the wrong type or shape, or invalid options; InputError also where another
+        colour than ``color`` finds far more laser light (``check_color``).
 
     Examples
     --------
@@ -126,6 +135,20 @@ def detect_stripe(
     """
     if direction not in DIRECTIONS:
         raise InputError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
+    detect = functools.partial(_detect_stripe, image, dark=dark, roi=roi, direction=direction, noise_sigma=noise_sigma,
+                               saturation_level=saturation_level, k_detect=k_detect,
+                               min_separation_px=min_separation_px, max_width_px=max_width_px,
+                               max_per_line=max_per_line, camera=camera, frame=frame)
+    table, li = detect(color)
+    if check_color:
+        check_laser_colour(li, color, table, lambda other: detect(other)[0], True, k_detect)
+    return table
+
+
+def _detect_stripe(image, color, *, dark, roi, direction, noise_sigma, saturation_level, k_detect, min_separation_px,
+                   max_width_px, max_per_line, camera, frame):
+    """:func:`detect_stripe` without the colour check: the table and the frame's
+    :class:`~scanrig.laser.image.LaserImage`."""
     li = prepare_image(image, color, dark, roi, saturation_level, noise_sigma)
     excess = prescan(li)
     if direction == "auto":
@@ -144,8 +167,8 @@ def detect_stripe(
     parts = [_line_table(li, along, f[0] + ([plain_fits[along]] if along in plain_fits else []))
              for along, f in fitted.items()]
     if not parts:
-        return empty_table()
-    return make_table("stripe", {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, camera, frame)
+        return empty_table(), li
+    return make_table("stripe", {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, camera, frame), li
 
 
 def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[str, LineCandidates]:
