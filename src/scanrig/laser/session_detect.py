@@ -277,9 +277,12 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     from scanrig.laser.spots import detect_spots
     from scanrig.laser.stripes import detect_stripe
 
+    # The session compares the colours once per camera (colour_mismatches), naming the camera:
+    # the library's check of every frame is not needed here.
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
     return detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
-                  saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame, **scan)
+                  saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame,
+                  check_color=False, **scan)
 
 
 def _run_job(job: _Job):

@@ -120,7 +120,8 @@ def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np
     u1, v1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 1, [image.shape[1], image.shape[0]])
     if u1 - u0 < 2 or v1 - v0 < 2:
         return none
-    table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)))
+    # A wrong colour is named by the caller (_colour_hint), with the pose: not by every detection.
+    table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)), check_color=False)
     first = np.asarray(table.column("rank")) == 0
     q = np.column_stack([np.asarray(table.column("u")), np.asarray(table.column("v"))])[first]
     board = np.full(len(q), -1)
