@@ -11,9 +11,9 @@ For each camera its inlier corners are solved again alone, with a target pose of
 (its intrinsics and the same held and prior terms as in the rig), starting from the rig's
 solution. The rig is the special case of that model in which the poses are the shared ones, so
 the camera's weighted residual sum can only fall; if the shared poses are right it falls by
-chi-square over the difference in degrees of freedom. The camera's degrees of freedom in the rig
-are its residuals less the leverages of its rows in the rig's solve,
-``2 n - <(JᵀJ)⁻¹, J_cᵀ J_c>``, alone ``2 n - p`` (``p`` its own unknowns), so
+chi-square over the difference in degrees of freedom. The camera's degrees of freedom in a solve
+are its residuals less the leverages of its rows there, ``2 n - <(JᵀJ)⁻¹, J_cᵀ J_c>`` (alone and
+without priors ``2 n - p``, ``p`` its own unknowns), so
 
 ``F = ((SSR_rig - SSR_alone) / Δdof) / (SSR_alone / dof_alone)``
 
@@ -33,6 +33,7 @@ from scipy.stats import f as fisher_f
 
 from scanrig.calibration.bundle import BundleResult, bundle_adjust
 from scanrig.calibration.observations import Observations
+from scanrig.calibration.uncertainty import parameter_covariance
 from scanrig.errors import InputError
 
 #: What a user can do when the cameras disagree (summary.txt lists these under the warning).
@@ -55,7 +56,8 @@ class CameraAgreement:
     Attributes
     ----------
     rms_alone_px, rms_rig_px : float
-        RMS reprojection error of the camera's inlier corners, solved alone and in the rig.
+        RMS reprojection error of the camera's inlier corners (``sqrt(mean |e|²)``, as
+        :meth:`~scanrig.calibration.bundle.BundleResult.rms_px`), solved alone and in the rig.
     ratio : float
         ``sqrt(F)``: the rig's extra misfit per constraint in units of the camera's own noise.
     dof : float
@@ -93,40 +95,54 @@ def camera_agreement(bundle: BundleResult, covariance: np.ndarray, target, fixed
     """
     obs = bundle.obs
     inliers = np.flatnonzero(bundle.inliers)
-    leverage = _leverage_sums(bundle, covariance / bundle.sigma_px ** 2)
+    rig_leverage = _leverage_sums(bundle.jacobian, covariance / bundle.sigma_px ** 2,
+                                  np.repeat(obs.camera[inliers], 2), len(obs.camera_names))
     out = {}
     for c, name in enumerate(obs.camera_names):
         rows = inliers[obs.camera[inliers] == c]
         alone = _solve_alone(bundle, c, rows, target, fixed_params, priors)
-        if alone is None:
+        if alone is None or alone.sigma_px == 0.0:
+            out[name] = None
+            continue
+        alone_leverage = _leverage_sums(alone.jacobian, parameter_covariance(alone)[0] / alone.sigma_px ** 2,
+                                        np.zeros(2 * len(rows), dtype=np.int64), 1)[0]
+        dof_alone = 2 * len(rows) - alone_leverage
+        d_dof = alone_leverage - rig_leverage[c]
+        if d_dof < 1.0 or dof_alone < 1.0:
             out[name] = None
             continue
         w = obs.weight[rows, None]
         ssr_rig = float(np.sum(w * bundle.residuals_px[rows] ** 2))
         ssr_alone = float(np.sum(w * alone.residuals_px ** 2))
-        dof_alone = 2 * len(rows) - alone.layout.size
-        d_dof = (2 * len(rows) - leverage[c]) - dof_alone
-        if d_dof < 1.0 or dof_alone < 1:
-            out[name] = None
-            continue
         f = max(ssr_rig - ssr_alone, 0.0) / d_dof / (ssr_alone / dof_alone)
-        out[name] = CameraAgreement(float(np.sqrt(ssr_alone / len(rows))), float(np.sqrt(ssr_rig / len(rows))),
-                                    float(np.sqrt(f)), float(d_dof), float(fisher_f.sf(f, d_dof, dof_alone)))
+        out[name] = CameraAgreement(alone.rms_px(), bundle.rms_px(c), float(np.sqrt(f)), float(d_dof),
+                                    float(fisher_f.sf(f, d_dof, dof_alone)))
     return out
 
 
-def _leverage_sums(bundle: BundleResult, inverse_normal: np.ndarray) -> np.ndarray:
-    """Per camera, the summed leverages of its residual rows in the rig's solve,
-    ``<(JᵀJ)⁻¹, J_cᵀ J_c>`` (``J`` the weighted Jacobian, observation rows first, two per
-    inlier corner, then any prior rows)."""
-    obs = bundle.obs
-    J = bundle.jacobian.tocsr()
-    camera_of_row = np.repeat(obs.camera[bundle.inliers], 2)
-    sums = np.zeros(len(obs.camera_names))
-    for c in range(len(obs.camera_names)):
-        J_c = J[:len(camera_of_row)][camera_of_row == c]
-        sums[c] = float((J_c.T @ J_c).multiply(inverse_normal).sum())
-    return sums
+def _leverage_sums(jacobian, inverse_normal: np.ndarray, group_of_row: np.ndarray, n_groups: int) -> np.ndarray:
+    """Per group of residual rows, the sum of their leverages in a solve, ``<(JᵀJ)⁻¹, J_gᵀ J_g>``.
+
+    Parameters
+    ----------
+    jacobian : scipy.sparse matrix of shape (R, P)
+        The solve's weighted Jacobian: the observation rows first (two per inlier corner), then
+        any prior rows (no group: they count in ``JᵀJ`` only).
+    inverse_normal : ndarray of shape (P, P)
+        ``(JᵀJ)⁻¹``, the pseudo-inverse where the data leave directions open.
+    group_of_row : ndarray of shape (R_obs,), int
+        The group of each observation row.
+    n_groups : int
+
+    Returns
+    -------
+    ndarray of shape (n_groups,)
+        Without priors and at full rank, a group's leverages sum to the parameters it alone
+        determines; over all rows, to ``P``.
+    """
+    J = jacobian.tocsr()[:len(group_of_row)]
+    return np.array([float((J_g.T @ J_g).multiply(inverse_normal).sum())
+                     for J_g in (J[group_of_row == g] for g in range(n_groups))])
 
 
 def _solve_alone(bundle: BundleResult, camera: int, rows: np.ndarray, target, fixed_params: dict,
