@@ -360,3 +360,25 @@ def test_a_subset_of_copies_is_written_back_alone_and_its_blocks_cut_alike():
     own_rows, blocks = rows.select(copies)
     assert own_rows.n_copies == 2 and set(own_rows.owner.tolist()) == {0, 1}
     assert torch.equal(own_rows.x, rows.x[blocks]) and torch.equal(rows.owner[blocks] == 4, own_rows.owner == 1)
+
+
+def test_a_copy_keeps_its_cholesky_solution_when_another_copy_of_the_batch_needs_lu(monkeypatch):
+    # copy 1 of the first batch has 3 points for 25 unknowns: its normal matrix is singular but
+    # for the tiny ridge, which the float32 rounding of its products defeats (Cholesky fails and
+    # LU solves it); copy 0 keeps, bit for bit, the solution it has beside a well-posed copy
+    gen = torch.Generator().manual_seed(7)
+    feats = torch.rand(3, 24, 50, generator=gen)
+    t = torch.randn(3, 50, generator=gen)
+    weight = torch.ones(3, 50, dtype=torch.float64)
+    feats[1, :, 3:], weight[1, 3:] = 0.0, 0.0
+    owner = torch.tensor([0, 1])
+    lu_systems = []
+    lu = torch.linalg.solve
+    monkeypatch.setattr(torch.linalg, "solve", lambda a, b: lu_systems.append(len(a)) or lu(a, b))
+    beside_singular = _weighted_solve(feats[:2], t[:2], weight[:2].sqrt(), owner, 2)
+    assert lu_systems == [1]  # copy 1 alone went to LU
+    beside_posed = _weighted_solve(feats[[0, 2]], t[[0, 2]], weight[[0, 2]].sqrt(), owner, 2)
+    assert torch.equal(beside_singular[0], beside_posed[0])
+    alone = _weighted_solve(feats[1:2], t[1:2], weight[1:2].sqrt(), torch.tensor([0]), 1)[0]
+    assert torch.isfinite(beside_singular[1]).all()
+    torch.testing.assert_close(beside_singular[1], alone)

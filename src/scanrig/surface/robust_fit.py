@@ -989,12 +989,13 @@ def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, root_weight: torch.Ten
     trace = diagonal.sum(dim=1) + gram[:, size, size] * mean_f.double().square().sum(dim=1)
     diagonal.add_(1e-9 * trace[:, None].clamp(min=1e-12))
     # the ridge makes every system positive definite: Cholesky, 1.5x faster than LU on these
-    # 25 x 25 systems; LU only if rounding defeats it
+    # 25 x 25 systems; LU only for the copies where rounding defeats it (copies with fewer points
+    # than units, e.g. the fold networks of the 30-60-point pieces of reflection blobs)
     factor, info = torch.linalg.cholesky_ex(gram)
-    if bool(info.any()):
-        coef = torch.linalg.solve(gram, rhs)
-    else:
-        coef = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+    coef = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+    failed = torch.nonzero(info)[:, 0]
+    if len(failed):
+        coef[failed] = torch.linalg.solve(gram[failed], rhs[failed])
     # c . (f - mean_f) + c0 = c . f + (c0 - c . mean_f), fitted to t - mean_t
     coef[:, size] += mean_t.double() - (coef[:, :size] * mean_f.double()).sum(dim=1)
     return coef
