@@ -19,9 +19,9 @@ without priors ``2 n - p``, ``p`` its own unknowns), so
 ``F = ((SSR_rig - SSR_alone) / Δdof) / (SSR_alone / dof_alone)``
 
 follows Fisher's F(Δdof, dof_alone), and ``ratio = sqrt(F)`` is the rig's extra misfit per
-constraint in units of the camera's own noise: 1 when the cameras agree. On clean simulated
-3-camera sessions (10-40 shots, 5 seeds each) the ratios were 0.84-1.25, the smallest
-probability 0.003; on the real 4-webcam ChArUco rig of ``tests/data/caliscope-4cam-charuco``
+constraint in units of the camera's own noise: 1 when the cameras agree. On the 240 clean
+simulated 3-camera sessions of ``benchmarks/bench_cross_validation.py`` (10-80 shots) the ratios
+were 0.78-1.29, the smallest probability 0.0026; on the real 4-webcam ChArUco rig of ``tests/data/caliscope-4cam-charuco``
 1.4-6.9, probabilities 1e-10 to 1e-290; on the real stereo pairs of
 ``tests/data/opencv-stereo-9x6`` and ``mrpt-stereo-9x6`` 2.6-3.2 (0.01-0.02 px of extra RMS).
 """

@@ -3,8 +3,7 @@
 ``summary.json`` (docs/file-formats.md) carries per camera its model, parameters and their σ,
 RMS, corners used and rejected, projection σ, cross-validation, its corners alone against the rig,
 and the warnings, each a single line naming its camera and cause, exactly as printed; for a
-flexible target
-(``flex = true``) also the board's two flex terms and their σ.
+flexible target (``flex = true``) also the board's two flex terms and their σ.
 """
 
 from __future__ import annotations
