@@ -173,6 +173,33 @@ def _bright_peaks(table, stripes: bool, least_peak: float) -> np.ndarray:
     return peak[counted]
 
 
+def checked_detection(detect: Callable, color: str, stripes: bool, k_detect: float, check: bool = True):
+    """The detections of ``detect(color)``, checked (:func:`check_laser_colour`) when ``check``.
+
+    Parameters
+    ----------
+    detect : callable
+        ``detect(colour) -> (pyarrow.Table, LaserImage)``: one frame's detections in a colour and
+        its signal.
+    color : str
+        The requested laser colour.
+    stripes : bool
+        Stripe detections (else spots).
+    k_detect : float
+        The detection threshold, in noise σ of the 3 x 3 box sum.
+    check : bool
+
+    Returns
+    -------
+    pyarrow.Table
+        The detections in ``color``.
+    """
+    table, li = detect(color)
+    if check:
+        check_laser_colour(li, color, table, lambda other: detect(other)[0], stripes, k_detect)
+    return table
+
+
 def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bool, k_detect: float) -> None:
     """Raise when a colour frame's laser shows in another channel than ``color``'s.
 

@@ -11,7 +11,7 @@ import functools
 
 import numpy as np
 
-from scanrig.laser.colour_check import check_laser_colour
+from scanrig.laser.colour_check import checked_detection
 from scanrig.laser.colour_fit import fit_clipped_spots
 from scanrig.laser.fit import MIN_PEAK_DN, MIN_WIDTH_PX, fit_batch, minor_model_2d, parameter_covariance
 from scanrig.laser.image import prepare_image
@@ -98,10 +98,7 @@ def detect_spots(
                                saturation_level=saturation_level, k_detect=k_detect,
                                min_separation_px=min_separation_px, max_width_px=max_width_px,
                                max_candidates=max_candidates, camera=camera, frame=frame)
-    table, li = detect(color)
-    if check_color:
-        check_laser_colour(li, color, table, lambda other: detect(other)[0], False, k_detect)
-    return table
+    return checked_detection(detect, color, False, k_detect, check_color)
 
 
 def _detect_spots(image, color, *, dark, roi, noise_sigma, saturation_level, k_detect, min_separation_px,

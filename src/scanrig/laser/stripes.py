@@ -22,7 +22,7 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.laser.clipped_runs import fit_unknown_runs, unknown_laser
-from scanrig.laser.colour_check import check_laser_colour
+from scanrig.laser.colour_check import checked_detection
 from scanrig.laser.colour_fit import fit_clipped
 from scanrig.laser.continuity import rank_by_continuity
 from scanrig.laser.fit import (
@@ -139,10 +139,7 @@ def detect_stripe(
                                saturation_level=saturation_level, k_detect=k_detect,
                                min_separation_px=min_separation_px, max_width_px=max_width_px,
                                max_per_line=max_per_line, camera=camera, frame=frame)
-    table, li = detect(color)
-    if check_color:
-        check_laser_colour(li, color, table, lambda other: detect(other)[0], True, k_detect)
-    return table
+    return checked_detection(detect, color, True, k_detect, check_color)
 
 
 def _detect_stripe(image, color, *, dark, roi, direction, noise_sigma, saturation_level, k_detect, min_separation_px,
