@@ -42,6 +42,8 @@ from scanrig.io.session import read_image  # noqa: E402
 from scanrig.laser.stripes import detect_stripe  # noqa: E402
 
 EDGE_ROWS = 8
+#: Rows of the running mean that shows how the Ciclop board's laser lines bend.
+SMOOTH_ROWS = 15
 COG_HALF = 3
 
 
@@ -167,19 +169,39 @@ def ciclop_board() -> None:
     print("\nReal Ciclop board (the -x pair, two lasers, a glint beside the left one), rank <= 1 points inside "
           "the board, undistorted: RMS from each laser's straight line")
     print(f"  {'saturation_level':18}{'laser':>7}{'n':>5}{'RMS':>7}{'<1px n':>8}{'RMS':>7}{'sigma':>7}"
-          f"{'glint rows <1.5px':>19}{'offset':>8}")
+          f"{'glint rows <1.5px':>19}{'offset':>8}{'15-row RMS':>12}")
     for level in (None, "auto"):
         lines = board.board_lines(detect_stripe(on, color="red", dark=off, saturation_level=level), outline)
+        by_row = []
         for name, (p, sigma, row) in zip(("left", "right"), lines):
             residual = board.line_residuals(p)
             near = np.abs(residual) < 1.0
             glint = (row >= board.GLINT_ROWS[0]) & (row <= board.GLINT_ROWS[1])
             off_glint = board.line_residuals(p, ~glint)[glint]
+            by_row.append(row_residuals(p, residual))
+            smoothed = np.convolve(by_row[-1][1], np.ones(SMOOTH_ROWS) / SMOOTH_ROWS, "valid")
             print(f"  {level!s:18}{name:>7}{len(p):5d}{np.sqrt(np.mean(residual**2)):7.3f}{near.sum():8d}"
                   f"{np.sqrt(np.mean(board.line_residuals(p[near]) ** 2)):7.3f}{np.sqrt(np.mean(sigma[near] ** 2)):7.3f}"
-                  f"{np.mean(np.abs(off_glint) < 1.5):19.2f}{np.median(off_glint):+8.2f}")
+                  f"{np.mean(np.abs(off_glint) < 1.5):19.2f}{np.median(off_glint):+8.2f}"
+                  f"{np.sqrt(np.mean(smoothed**2)):12.3f}")
+        (left_v, left_r), (right_v, right_r) = by_row
+        rows = np.arange(max(left_v[0], right_v[0]), min(left_v[-1], right_v[-1]))
+        print(f"  {'':18}the two lines' residuals, correlation row by row: "
+              f"{np.corrcoef(np.interp(rows, left_v, left_r), np.interp(rows, right_v, right_r))[0, 1]:.2f}")
     print("  <1px: the points within 1 px of the line, their RMS about their own line and their reported sigma (RMS);")
-    print("  glint rows (569-638): share within 1.5 px of the line through the other rows, and their median offset")
+    print("  glint rows (569-638): share within 1.5 px of the line through the other rows, and their median offset;")
+    print(f"  15-row RMS: the residuals of the points within 1.5 px, {SMOOTH_ROWS}-row running mean (a bend of the light")
+    print("  itself; centre noise averages out)")
+
+
+def row_residuals(points: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals of the points within 1.5 px of their line, ``(v (n,), residual (n,))`` px, in
+    order of their undistorted row ``v``, one value per whole row."""
+    near = np.abs(residual) < 1.5
+    v, r = points[near, 1], residual[near]
+    order = np.argsort(v)
+    rows = np.arange(np.ceil(v.min()), np.floor(v.max()) + 1)
+    return rows, np.interp(rows, v[order], r[order])
 
 
 def main() -> None:
