@@ -15,7 +15,7 @@ from scanrig.errors import InputError
 from scanrig.surface.network import HeightFieldNets
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
-                                      _heldout_prediction, _irls_weight, _Mixture, _output_layer_irls, _robust_loss,
+                                      _heldout_prediction, _irls_weight, _output_layer_irls, _robust_loss,
                                       _size_batches, _weighted_least_squares, _weighted_solve, concatenate_fits,
                                       fit_charts, fit_charts_by_size)
 
@@ -242,87 +242,45 @@ def test_freed_memory_is_reused_without_page_faults():
 
 
 def _random_copies(seed, n_charts=2, n=30):
-    """Random networks of ``n_charts`` charts x 2 fold networks, their blocks, random weights in
-    [0, 1] and fixed cut-offs."""
-    k = 2  # copies per chart: the fold networks
+    """Random networks of ``n_charts`` charts x (full + 2 fold networks), their blocks, random weights
+    in [0, 1] and fixed cut-offs."""
+    k = 3  # copies per chart: the full network and its 2 fold networks
     gen = torch.Generator().manual_seed(seed)
     nets = HeightFieldNets(n_charts * k, hidden=5, depth=2, architecture="mlp", generator=gen)
     rng = np.random.default_rng(seed)
     uv = torch.as_tensor(rng.uniform(-1, 1, (n_charts, n, 2)), dtype=torch.float32)
     z = torch.as_tensor(rng.normal(0, 1, (n_charts, n)), dtype=torch.float32)
-    fold = rng.integers(0, k, (n_charts, n))
+    fold = rng.integers(0, 2, (n_charts, n))
     x = uv[:, None].expand(-1, k, -1, -1).reshape(-1, n, 2)
     t = z[:, None].expand(-1, k, -1).reshape(-1, n)
-    rows = _Blocks.of(x, t, np.stack([fold != j for j in range(k)], axis=1).reshape(-1, n))
+    mask = np.stack([np.ones((n_charts, n), bool)] + [fold != j for j in range(2)], axis=1).reshape(-1, n)
+    rows = _Blocks.of(x, t, mask, n_folds=2)
     weight = torch.as_tensor(rng.uniform(0, 1, tuple(rows.m.shape))) * rows.m
     cut = {"a": torch.full((n_charts * k, 1), 0.5), "b": torch.full((n_charts * k, 1), 1.5),
            "beta": torch.full((n_charts * k, 1), 2.0)}
     return nets, rows, weight, cut, x, t, z, fold
 
 
-def test_each_point_is_held_out_by_the_fold_network_that_did_not_train_on_it():
-    nets, rows, _, _, x, t, z, fold = _random_copies(4)
-    z_chart, heldout = _heldout_prediction(nets, x, t, fold)
-    with torch.no_grad():
-        pred = nets(x).reshape(*fold.shape[:1], 2, fold.shape[1]).numpy()
-    torch.testing.assert_close(z_chart, z)
-    np.testing.assert_array_equal(heldout.numpy(), np.take_along_axis(pred, fold[:, None], axis=1)[:, 0])
-    for v, copy in enumerate(rows.owner.tolist()):  # fold network j trains on the points outside fold j
-        chart, j = divmod(copy, 2)
-        trained = rows.index[v][rows.m[v]].numpy()
-        np.testing.assert_array_equal(np.sort(trained), np.flatnonzero(fold[chart] != j))
-
-
-def test_fold_network_weights_are_bounded_by_the_held_out_ones():
-    # each weight must become min(own, Hampel weight of z minus the fold network that did not see
-    # the point: with two folds, the other one)
+def test_full_network_weights_are_bounded_by_the_held_out_ones():
+    # each full-network weight must become min(own, Hampel weight of z minus the fold network
+    # that did not see the point)
     nets, rows, weight, cut, x, t, z, fold = _random_copies(4)
+    n_charts, k, n = fold.shape[0], 3, fold.shape[1]
     z_chart, heldout = _heldout_prediction(nets, x, t, fold)
     bounded = _bounded_by_heldout(rows, weight, z_chart - heldout, FitSettings(), {"torch": cut}).numpy()
     with torch.no_grad():
-        pred = nets(x).reshape(fold.shape[0], 2, fold.shape[1]).numpy()
-    for v, copy in enumerate(rows.owner.tolist()):
-        chart, j = divmod(copy, 2)
+        pred = nets(x).reshape(n_charts, k, n).numpy()
+    for v in range(len(rows.owner)):
+        copy = int(rows.owner[v])
+        chart, member = divmod(copy, k)
         for slot in np.flatnonzero(rows.m[v].numpy()):
             point = int(rows.index[v, slot])
-            r = float(z[chart, point]) - pred[chart, 1 - j, point]
-            expected = min(float(weight[v, slot]), float(hampel_weight(np.array(r), 0.5, 1.5, 2.0)))
+            if member == 0:
+                r = float(z[chart, point]) - pred[chart, 1 + fold[chart, point], point]
+                expected = min(float(weight[v, slot]), float(hampel_weight(np.array(r), 0.5, 1.5, 2.0)))
+            else:
+                expected = float(weight[v, slot])
             assert bounded[v, slot] == pytest.approx(expected, abs=1e-6)
-
-
-def test_the_charts_surface_is_the_mean_of_its_fold_networks():
-    # the fit, its predictions, its derivatives and the residuals the local mixture weighs are
-    # those of the mean of each chart's fold networks
-    rng = np.random.default_rng(6)
-    uv = rng.uniform(-1, 1, (2, 80, 2))
-    z = 0.3 * uv[..., 0] ** 2 - 0.2 * uv[..., 1] + rng.normal(0, 0.01, (2, 80))
-    settings = FitSettings(hidden=6, depth=1, robust_epochs=20, refit_epochs=10, update_every=10, start_epochs=5,
-                           n_boot=20)
-    fits = fit_charts(uv, z, np.ones((2, 80), bool), settings=settings, rng=np.random.default_rng(0))
-    per_fold = fits.predict(uv, folds=True)
-    assert per_fold.shape == (2, settings.n_folds, 80)
-    np.testing.assert_allclose(fits.predict(uv), per_fold.mean(axis=1), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fits.z_fit, per_fold.mean(axis=1), rtol=0, atol=1e-6)
-    grad, hess = fits.height_derivatives(uv)
-    h = 0.01
-    for i in range(2):  # central differences of the mean (float32 networks, curvatures up to ~9)
-        step = np.zeros(2)
-        step[i] = h
-        central = (fits.predict(uv + step) - fits.predict(uv - step)) / (2 * h)
-        np.testing.assert_allclose(grad[..., i], central, rtol=0, atol=3e-3)
-    # each fold network alone, as the one network of its charts: the mean of their derivatives
-    alone = [dataclasses.replace(fits, nets=fits.nets.subset(torch.arange(j, 4, 2)), n_folds=1).height_derivatives(uv)
-             for j in range(2)]
-    np.testing.assert_allclose(grad, np.mean([g for g, _ in alone], axis=0), rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(hess, np.mean([H for _, H in alone], axis=0), rtol=1e-5, atol=1e-5)
-    train = rng.random((2, 80)) < 0.8
-    mixture = _Mixture(neighbours=np.zeros((2, 80, 1), int), x=fits._per_copy(uv),
-                       z=torch.as_tensor(z), train=train)
-    with torch.no_grad():
-        coef = torch.cat([fits.nets.weights[-1][:, :, 0], fits.nets.biases[-1][:, 0]], dim=1)
-        residual = mixture.residual(fits.nets.features(mixture.x), coef)
-    np.testing.assert_allclose(residual[train], (z - per_fold.mean(axis=1))[train], rtol=0, atol=1e-5)
-    assert np.isnan(residual[~train]).all()
 
 
 def test_monotone_output_layer_irls_never_raises_a_weight_and_leaves_the_optimum():
@@ -389,19 +347,19 @@ def test_negative_convergence_checks_are_rejected():
 def test_a_subset_of_copies_is_written_back_alone_and_its_blocks_cut_alike():
     nets, rows, *_ = _random_copies(6)
     before = [p.detach().clone() for p in nets.parameters()]
-    copies = torch.tensor([1, 3])
+    copies = torch.tensor([1, 4])
     part = nets.subset(copies)
     with torch.no_grad():
         for p in part.parameters():
             p.add_(1.0)
     nets.assign(copies, part)
-    others = torch.tensor([0, 2])
+    others = torch.tensor([0, 2, 3, 5])
     for p, p0 in zip(nets.parameters(), before):
         torch.testing.assert_close(p[copies], p0[copies] + 1.0)
         assert torch.equal(p[others], p0[others])
     own_rows, blocks = rows.select(copies)
     assert own_rows.n_copies == 2 and set(own_rows.owner.tolist()) == {0, 1}
-    assert torch.equal(own_rows.x, rows.x[blocks]) and torch.equal(rows.owner[blocks] == 3, own_rows.owner == 1)
+    assert torch.equal(own_rows.x, rows.x[blocks]) and torch.equal(rows.owner[blocks] == 4, own_rows.owner == 1)
 
 
 def test_a_copy_keeps_its_cholesky_solution_when_another_copy_of_the_batch_needs_lu(monkeypatch):

@@ -198,10 +198,8 @@ def test_the_filter_keeps_a_step_sharp_and_its_neighbours():
     level = project_on_surface(result, probe)[:, 2] / STEP
     rising = s[(level > 0.1) & (level < 0.9)]
     assert rising.size == 0 or np.ptp(rising) <= SPACING
-    # the transition (where the level first passes half the step) lies between the last sample of
-    # the low side and the first of the high one; the probe nearest half the step would be a
-    # level far from the step when the fit jumps between two probes
-    assert abs(s[np.argmax(level > 0.5)]) <= SPACING
+    # the transition lies between the last sample of the low side and the first of the high one
+    assert abs(s[np.argmin(np.abs(level - 0.5))]) <= SPACING
 
 
 def front_ghost_grid(rng):

@@ -30,8 +30,8 @@ MIN_POINTS = 16  # below this a surface network (2 folds x several points) is me
 TRUST_FACTOR = 3.0
 #: A chart moves a point whose own sigma is known only if its held-out noise scale is at most
 #: this multiple of that sigma. The held-out scale is ``sqrt(sigma_point^2 + s_fold^2)`` with
-#: ``s_fold`` the error of a fold network's prediction; the chart's surface, the mean of its two
-#: fold networks, errs by about ``s_fold / sqrt(2)``, and replacing the point by the fit helps only if
+#: ``s_fold`` the error of a fold network's prediction; the full network, trained on twice the
+#: points, errs by about ``s_fold / sqrt(2)``, and replacing the point by the fit helps only if
 #: that is below ``sigma_point``: ``sqrt(3)``. With ``TRUST_FACTOR`` (3) instead, a 62-point
 #: demo cloud of one chart (held-out scale 0.30 mm, median point sigma 0.09 mm) moved a point from
 #: 0.13 mm to 0.39 mm off the true surface.

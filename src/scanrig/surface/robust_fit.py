@@ -10,28 +10,24 @@ with the choices documented in ``docs/surface-filter.md``:
    cut-offs start at ``r`` times that scale, and the networks are first fitted for
    ``start_epochs`` epochs by least squares on the good points, the others replaced by the
    chart's quadratic through the good points.
-2. **Held-out residuals** (our choice): the points of a chart are split in ``n_folds`` folds,
-   and one fold network per fold is trained on the other folds. The noise scale comes from the
-   residual of each point under the fold network that never saw it, so an over-fitting network
-   cannot shrink the scale. The chart's surface is the mean of its fold networks: averaged, two
-   fits to half of the points each come close to one fit to all of them (the protocol cells'
-   error 4 % higher on average), and a network trained on all of them beside the folds was half
-   of the networks' point-evaluations (0.67-0.73 times the time without it, 100 000 points on
-   one thread; ``docs/surface-filter.md``).
+2. **Held-out residuals** (our choice): the points of a chart are split in ``n_folds`` folds;
+   besides the full network, one fold network per fold is trained on the other folds. The
+   noise scale comes from the residual of each point under the fold network that never saw it,
+   so an over-fitting network cannot shrink the scale.
 3. **Scale and bootstrap** (Chen & Jain's bootstrap confidence interval; our estimator):
    :func:`~scanrig.surface.hampel.robust_scale` gives sigma and its bootstrap upper bound
    sigma+; ``a_t = p sigma+``, ``b_t = r sigma+``, ``beta_t = gamma / sigma+``, recomputed every
    ``update_every`` epochs and never allowed to grow (monotone shrinkage).
 4. **Robust back-propagation**: ``robust_epochs`` epochs of every layer on the Hampel tanh loss
    of :mod:`scanrig.surface.hampel`.
-5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen (each bounded by
-   the one of its point's held-out residual), every network trained on, from the hidden layers
-   the Hampel phase left, by weighted least squares for ``refit_epochs`` epochs with a smaller,
-   warmed-up step: the one-step reweighting of reweighted LTS, which keeps what the redescending
-   fit learnt, which points to trust, and settles the fit those weights define. Before it and in
-   the output-layer steps after it, each weight is multiplied by the point's inlier posterior
-   under a local mixture (:mod:`scanrig.surface.mixture`), which takes out part of the one-sided
-   outliers inside the noise band.
+5. **Reweighting step** (our choice): the final weights ``psi(r) / r`` frozen (a full
+   network's weight bounded by the one of its point's held-out residual), every network
+   trained on, from the hidden layers the Hampel phase left, by weighted least squares for
+   ``refit_epochs`` epochs with a smaller, warmed-up step: the one-step reweighting of
+   reweighted LTS, which keeps what the redescending fit learnt, which points to trust, and
+   settles the fit those weights define. Before it and in the output-layer steps after it, each weight is multiplied by the
+   point's inlier posterior under a local mixture (:mod:`scanrig.surface.mixture`), which
+   takes out part of the one-sided outliers inside the noise band.
 
 All charts and folds are trained at once as one batch of independent networks
 (:class:`~scanrig.surface.network.HeightFieldNets`). The hidden layers follow the gradient of the
@@ -88,8 +84,7 @@ class FitSettings:
     architecture, hidden, depth : str, int, int
         Network, see :class:`~scanrig.surface.network.HeightFieldNets`.
     n_folds : int
-        Folds for the held-out residuals (>= 2): fold networks per chart, whose mean is the
-        chart's surface.
+        Folds for the held-out residuals (>= 2).
     start_neighbours : int
         Neighbours of the local trimmed planes of the robust start (``"hampel"`` only, see
         :mod:`scanrig.surface.local_start`).
@@ -240,12 +235,12 @@ class ChartFits:
     Attributes
     ----------
     nets : HeightFieldNets
-        ``C * n_folds`` networks; copy ``c * n_folds + j`` is chart c's fold network j, trained
-        on the chart's points outside fold j.
+        ``C * (n_folds + 1)`` networks; copy ``c * (n_folds + 1)`` is chart c's full network,
+        the next ``n_folds`` its fold networks.
     n_folds : int
         Folds per chart.
     z_fit : (C, n_max) float array
-        The chart's surface (the mean of its fold networks) at the input points.
+        Full network at the input points.
     residual_heldout : (C, n_max) float array
         ``z`` minus the fold network that did not see the point.
     sigma, sigma_upper : (C,) float arrays
@@ -270,25 +265,28 @@ class ChartFits:
 
     @torch.no_grad()
     def predict(self, uv: np.ndarray, *, folds: bool = False) -> np.ndarray:
-        """Evaluate the charts' surfaces (the mean of their fold networks) at chart coordinates.
+        """Evaluate the networks of every chart at chart coordinates.
 
         Parameters
         ----------
         uv : (C, m, 2) float array
             Normalised coordinates per chart.
         folds : bool
-            Return every fold network instead of their mean.
+            Return every copy (full and fold networks) instead of the full network only.
 
         Returns
         -------
-        (C, m) float array, or (C, n_folds, m) if ``folds``
+        (C, m) float array, or (C, n_folds + 1, m) if ``folds``
         """
-        x = self._per_copy(uv)
-        z = self.nets(x).reshape(uv.shape[0], self.n_folds, uv.shape[1]).double().cpu().numpy()
-        return z if folds else z.mean(axis=1)
+        device = self.nets.weights[0].device
+        k = self.n_folds + 1
+        x = torch.as_tensor(uv, dtype=torch.float32, device=device)
+        x = x[:, None].expand(-1, k, -1, -1).reshape(-1, x.shape[1], 2)
+        z = self.nets(x).reshape(uv.shape[0], k, uv.shape[1]).double().cpu().numpy()
+        return z if folds else z[:, 0]
 
     def height_derivatives(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gradient and Hessian of the charts' surfaces at chart coordinates (autograd).
+        """Gradient and Hessian of the full networks at chart coordinates (autograd).
 
         Parameters
         ----------
@@ -301,31 +299,30 @@ class ChartFits:
         hess : (C, m, 2, 2) float array
             ``[[f_uu, f_uv], [f_uv, f_vv]]``.
         """
-        x = self._per_copy(uv).clone().requires_grad_(True)
-        z = self.nets(x) / self.n_folds  # the mean's derivatives: the copies' summed below
+        device = self.nets.weights[0].device
+        k = self.n_folds + 1
+        x = torch.as_tensor(uv, dtype=torch.float32, device=device)
+        x = x[:, None].expand(-1, k, -1, -1).reshape(-1, x.shape[1], 2).clone().requires_grad_(True)
+        z = self.nets(x)
         (g,) = torch.autograd.grad(z.sum(), x, create_graph=True)
         rows = [torch.autograd.grad(g[..., i].sum(), x, retain_graph=True)[0] for i in range(2)]
         hess = torch.stack(rows, dim=-2)
-        shape = (uv.shape[0], self.n_folds, uv.shape[1])
-        grad = g.detach().reshape(*shape, 2).sum(dim=1)
-        hess = hess.detach().reshape(*shape, 2, 2).sum(dim=1)
+        shape = (uv.shape[0], k, uv.shape[1])
+        grad = g.detach().reshape(*shape, 2)[:, 0]
+        hess = hess.detach().reshape(*shape, 2, 2)[:, 0]
         return grad.double().cpu().numpy(), hess.double().cpu().numpy()
-
-    def _per_copy(self, uv: np.ndarray) -> torch.Tensor:
-        """Chart coordinates (C, m, 2) repeated for each chart's fold networks: (C * n_folds, m, 2) tensor."""
-        x = torch.as_tensor(uv, dtype=torch.float32, device=self.nets.weights[0].device)
-        return x[:, None].expand(-1, self.n_folds, -1, -1).reshape(-1, x.shape[1], 2)
 
 
 @dataclass
 class _Blocks:
-    """The training points of every copy, first in its row and padded to the longest copy's.
+    """The training points of every copy, in blocks of equal length.
 
-    Each fold network trains on the points outside its fold only: gathered, instead of masked
-    out of the chart's padded points, they cost no evaluation. Rows (blocks): the copies with
-    at least one training point, each evaluated with its copy's weights (``owner``; the output
-    layer sums a copy's blocks, and :class:`_Active` cuts the blocks of converged copies out);
-    columns: points.
+    A fold network trains on about ``1/n_folds`` fewer points than the chart's full network;
+    a batch of copies padded to the full network's length computed every fold network on
+    points it must not see (masked), a third of the work with two folds. Here each copy's
+    training points are cut into blocks of the fold networks' length (the full network's into
+    ``n_folds`` blocks) and a block is evaluated with its copy's weights (``owner``); the
+    output layer sums its copy's blocks. Rows: blocks; columns: points.
 
     Attributes
     ----------
@@ -351,19 +348,28 @@ class _Blocks:
     index: torch.Tensor
 
     @classmethod
-    def of(cls, x: torch.Tensor, t: torch.Tensor, mask: np.ndarray) -> _Blocks:
-        """Blocks of the points ``mask`` (M, n) of copies ``x`` (M, n, 2), ``t`` (M, n)."""
+    def of(cls, x: torch.Tensor, t: torch.Tensor, mask: np.ndarray, *, n_folds: int) -> _Blocks:
+        """Blocks of the points ``mask`` (M, n) of copies ``x`` (M, n, 2), ``t`` (M, n).
+
+        Copies are laid out as in :func:`fit_charts`: each chart's full network, then its
+        ``n_folds`` fold networks.
+        """
         counts = mask.sum(axis=1)
-        length = max(1, int(counts.max()))
-        keep = counts > 0
-        owner = np.flatnonzero(keep)
-        index = np.argsort(~mask, axis=1, kind="stable")[keep, :length]  # each copy's points first
-        real = np.arange(length) < counts[keep, None]
+        is_full = (np.arange(len(mask)) % (n_folds + 1)) == 0
+        length = max(1, int(max(counts[~is_full].max(initial=0), np.ceil(counts.max() / n_folds))))
+        pieces = max(1, int(np.ceil(counts.max() / length)))
+        order = np.argsort(~mask, axis=1, kind="stable")  # each copy's points first
+        order = np.pad(order, ((0, 0), (0, max(0, pieces * length - order.shape[1]))))
+        slot = np.arange(pieces * length).reshape(pieces, length)
+        real = slot[None] < counts[:, None, None]  # (M, P, L)
+        keep = real.any(axis=2)
+        owner = np.repeat(np.arange(len(mask)), pieces).reshape(len(mask), pieces)[keep]
+        index = order[:, : pieces * length].reshape(len(mask), pieces, length)[keep]
         device = x.device
         owner_t, index_t = torch.as_tensor(owner, device=device), torch.as_tensor(index, device=device)
         n_train = torch.as_tensor(np.maximum(counts, 1), dtype=t.dtype, device=device)[owner_t]
         return cls(x=torch.gather(x[owner_t], 1, index_t[..., None].expand(-1, -1, 2)),
-                   t=torch.gather(t[owner_t], 1, index_t), m=torch.as_tensor(real, device=device),
+                   t=torch.gather(t[owner_t], 1, index_t), m=torch.as_tensor(real[keep], device=device),
                    owner=owner_t, n_copies=len(mask), n_train=n_train, index=index_t)
 
     def gather(self, per_copy: torch.Tensor) -> torch.Tensor:
@@ -514,14 +520,14 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     ChartFits
     """
     n_charts, n_max = valid.shape
-    k = settings.n_folds
+    k = settings.n_folds + 1
     train = valid if train_mask is None else (valid & train_mask)
     if np.any(train.sum(axis=1) < 2 * settings.n_folds):
         raise InputError(f"every chart needs at least {2 * settings.n_folds} points to fit")
     fold = rng.integers(0, settings.n_folds, size=(n_charts, n_max))
 
-    def copy_mask(points):  # copy j trains on the points outside fold j
-        return np.stack([points & (fold != j) for j in range(k)], axis=1).reshape(-1, n_max)
+    def copy_mask(points):  # copy 0 trains on every point, copy j >= 1 on the points outside fold j - 1
+        return np.stack([points] + [points & (fold != j) for j in range(settings.n_folds)], axis=1).reshape(-1, n_max)
 
     gen = torch.Generator(device="cpu").manual_seed(int(rng.integers(2**62)))
     nets = HeightFieldNets(n_charts * k, hidden=settings.hidden, depth=settings.depth,
@@ -531,10 +537,10 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
     t = torch.as_tensor(z, dtype=torch.float32, device=device)[:, None].expand(-1, k, -1).reshape(-1, n_max)
     # every point: the output layer's last steps, the reweighting step's weights; the hidden
     # layers of a dense chart learn from a subsample of it (``train_points``)
-    rows_all = rows = _Blocks.of(x, t, copy_mask(train))
+    rows_all = rows = _Blocks.of(x, t, copy_mask(train), n_folds=settings.n_folds)
     if settings.train_points and np.any(train.sum(axis=1) > settings.train_points):
         rows = _Blocks.of(x, t, stratified_subsample(np.repeat(uv, k, axis=0), copy_mask(train), settings.train_points,
-                                                     rng.spawn(1)[0]))
+                                                     rng.spawn(1)[0]), n_folds=settings.n_folds)
 
     n_loop = settings.robust_epochs if settings.loss == "hampel" else settings.epochs
     opt = _adam(nets, settings, n_loop, settings.warmup_epochs if settings.loss == "hampel" else 0)
@@ -605,22 +611,22 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
         # squares (what the robust fit has learnt is which points to trust and how much)
         z_chart, heldout = _heldout_prediction(nets, x, t, fold)
         weight = _bounded_by_heldout(rows_all, weight, z_chart - heldout, settings, state)
-        mixture = None
+        neighbours = None
         if settings.mixture_neighbours > 0:
-            mixture = _Mixture(chart_neighbours(uv, train, settings.mixture_neighbours), x, z_chart.double(), train)
-            weight = weight * _mixture_weights(rows_all, mixture.neighbours,
-                                               (z_chart - heldout).double().cpu().numpy(), settings, state)
+            neighbours = chart_neighbours(uv, train, settings.mixture_neighbours)
+            weight = weight * _mixture_weights(rows_all, neighbours, (z_chart - heldout).double().cpu().numpy(),
+                                               settings, state)
         trained = torch.where(rows.m, rows.gather(rows_all.scatter(weight, n_max)), 0.0)
         _weighted_least_squares(nets, rows, trained, settings, settings.refit_epochs,
                                 learning_rate=settings.refit_step * settings.learning_rate,
                                 warmup_epochs=settings.refit_warmup_epochs)
-        weight = _output_layer_irls(nets, rows_all, weight, settings, state, monotone=True, mixture=mixture)
+        weight = _output_layer_irls(nets, rows_all, weight, settings, state, monotone=True, neighbours=neighbours)
 
     final = _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, device)
     history.append({"epoch": n_loop, "sigma_upper": final["sigma_upper"].copy(), "rejected": final["rejected"]})
     with torch.no_grad():
         pred = nets(x).reshape(n_charts, k, n_max).double().cpu().numpy()
-    return ChartFits(nets=nets, n_folds=settings.n_folds, z_fit=pred.mean(axis=1),
+    return ChartFits(nets=nets, n_folds=settings.n_folds, z_fit=pred[:, 0],
                      residual_heldout=final["residual"], sigma=final["sigma"],
                      sigma_upper=final["sigma_upper"], a=final["a"], b=final["b"],
                      beta=final["beta"], history=history)
@@ -765,7 +771,7 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
     ChartFits
         Padded arrays widened to the widest part (NaN padding).
     """
-    k = parts[0].n_folds
+    k = parts[0].n_folds + 1
     copies = torch.as_tensor((np.asarray(rows)[:, None] * k + np.arange(k)).ravel())
     n_max = max(p.z_fit.shape[1] for p in parts)
 
@@ -796,19 +802,14 @@ def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
 
 def _bounded_by_heldout(rows: _Blocks, weight: torch.Tensor, heldout_residual: torch.Tensor, settings: FitSettings,
                         state: dict) -> torch.Tensor:
-    """The fold networks' robust weights, each bounded by its point's held-out weight.
+    """The full networks' robust weights, each bounded by its point's held-out weight.
 
-    A cluster of outliers just beyond the rejection point pulls the network that trains on it
-    until its own residuals fall inside and its weights stay up; the fold network that never saw
-    a point (only the other folds' part of its cluster) is pulled less. Each weight becomes
-    ``min(psi(r)/r, psi(r_heldout)/r_heldout)`` at the current cut-offs: with two folds, a point
-    keeps weight only if both fold networks grant it. Measured without the bound (the 32 64 x 64
-    protocol cells of seed 0): mean ratio to the oracle 0.985 instead of 0.974; crease and step
-    on data seeds 100-109, median of the step 0.944-1.004 instead of 0.936-0.977; recall on the
-    100 000-point scan 0.925, 0.957, 0.936 instead of 0.950, 0.964, 0.934 (seeds 0-2). With a
-    network of its own for each chart's surface, that network's weights were bounded alike:
-    saddle at 40 % outliers 1.03 / 1.54 / 1.09 times the oracle instead of 1.03 / 1.85 / 1.34
-    (three weight seeds).
+    A cluster of outliers just beyond the rejection point pulls the full network, which trains on
+    it, until its own residuals fall inside and its weights stay up; the fold network that never
+    saw a point (only the other fold's half of its cluster) is pulled half as much. Each full
+    network's weight becomes ``min(psi(r)/r, psi(r_heldout)/r_heldout)`` at the current
+    cut-offs; the fold networks keep theirs. Measured (three weight seeds, 40 % outliers): saddle
+    1.03 / 1.54 / 1.09 times the oracle instead of 1.03 / 1.85 / 1.34.
 
     Parameters
     ----------
@@ -827,10 +828,11 @@ def _bounded_by_heldout(rows: _Blocks, weight: torch.Tensor, heldout_residual: t
     (V, L) float64 tensor
     """
     n_max = heldout_residual.shape[1]
+    k = settings.n_folds + 1
     with torch.no_grad():
-        residual = heldout_residual[:, None].expand(-1, settings.n_folds, -1).reshape(-1, n_max)
+        residual = heldout_residual[:, None].expand(-1, k, -1).reshape(-1, n_max)
         held = _irls_weight(rows.gather(residual), rows.m, settings.loss, rows.per_block(state["torch"]))
-    return torch.minimum(weight, held)
+    return torch.where((rows.owner % k == 0)[:, None], torch.minimum(weight, held), weight)
 
 
 def _weighted_least_squares(nets: HeightFieldNets, rows: _Blocks, weight: torch.Tensor,
@@ -885,38 +887,8 @@ def _adam(nets: HeightFieldNets, settings: FitSettings, epochs: int, warmup_epoc
     return Adam(nets.hidden_parameters(), settings.learning_rate if learning_rate is None else learning_rate, factor)
 
 
-@dataclass
-class _Mixture:
-    """What the output layer's last steps need for the local mixture: each chart's members and
-    neighbours, and the heights its surface (the mean of its fold networks) is measured against.
-
-    Attributes
-    ----------
-    neighbours : (C, n, k) int array
-        :func:`~scanrig.surface.mixture.chart_neighbours` of the points ``train``.
-    x : (M, n, 2) tensor
-        Every copy's chart coordinates (all the chart's points, not only its training points).
-    z : (C, n) float64 tensor
-        Heights.
-    train : (C, n) bool array
-        The points the mixture counts.
-    """
-
-    neighbours: np.ndarray
-    x: torch.Tensor
-    z: torch.Tensor
-    train: np.ndarray
-
-    def residual(self, feats: torch.Tensor, coef: torch.Tensor) -> np.ndarray:
-        """Height minus the chart's surface, (C, n) float64, NaN off ``train``, for the copies'
-        features at ``x`` (M, H, n) and output layers ``coef`` (M, H + 1)."""
-        n_charts, n = self.z.shape
-        surface = _output(feats, coef).double().reshape(n_charts, -1, n).mean(dim=1)
-        return np.where(self.train, (self.z - surface).cpu().numpy(), np.nan)
-
-
 def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitSettings, state: dict,
-                       *, monotone: bool = False, mixture: _Mixture | None = None) -> torch.Tensor:
+                       *, monotone: bool = False, neighbours: np.ndarray | None = None) -> torch.Tensor:
     """Set the output layer to its IRLS optimum for the current hidden layers.
 
     ``settings.final_irls`` times: the weighted least-squares output layer, then the weights
@@ -925,31 +897,30 @@ def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitS
 
     With ``monotone``, no weight rises above the one it was given (after the reweighting step:
     these steps may only take more points out, as the cut-offs only shrink). Free to rise, they
-    let back clusters that the held-out bound had kept out (measured with a network trained on
-    all of a chart's points beside its fold networks): plane at 40 % outliers, weight seed 0, the
-    outliers with weight went from 29 to 57 and the fit from 0.20 sigma to 0.29 sigma (0.20 sigma
-    monotone; mean over the 24 protocol cells and weight seeds 0-2 1.016 times the
+    let back clusters that the held-out bound had kept out: plane at 40 % outliers, weight seed
+    0, the outliers with weight went from 29 to 57 and the fit from 0.20 sigma to 0.29 sigma
+    (0.20 sigma monotone; mean over the 24 protocol cells and weight seeds 0-2 1.016 times the
     oracle instead of 1.032, seeds 3-5 1.010 instead of 1.020). Without these steps after the
     reweighting step the fit kept points the retrained network shows to be off (step without
     outliers, seed 2: 1.44 times the oracle; simulated scan at 10 %: 1.46).
 
-    With ``mixture``, every step's weights are also multiplied by the points' inlier posterior
-    under the residuals from the charts' surfaces (:func:`_mixture_weights`).
+    With ``neighbours`` (:func:`~scanrig.surface.mixture.chart_neighbours`, (C, n, k)), every
+    step's weights are also multiplied by the points' inlier posterior under the full networks'
+    residuals (:func:`_mixture_weights`).
     """
     cuts = rows.per_block(state["torch"])
     given = weight
     with torch.no_grad():
         feats = nets.features(rows.x, rows.owner)
-        feats_all = None if mixture is None else nets.features(mixture.x)
         for _ in range(settings.final_irls):
             coef = _weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies)
             residual = rows.t - _output(feats, coef[rows.owner])
             weight = _irls_weight(residual, rows.m, settings.loss, cuts)
             if monotone:
                 weight = torch.minimum(weight, given)
-            if mixture is not None:
-                weight = weight * _mixture_weights(rows, mixture.neighbours, mixture.residual(feats_all, coef),
-                                                   settings, state)
+            if neighbours is not None:
+                full = rows.scatter(residual.double(), neighbours.shape[1])[:: settings.n_folds + 1]
+                weight = weight * _mixture_weights(rows, neighbours, full.cpu().numpy(), settings, state)
         nets.set_output(_weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies))
     return weight
 
@@ -971,7 +942,7 @@ def _mixture_weights(rows: _Blocks, neighbours: np.ndarray, residual: np.ndarray
     with np.errstate(divide="ignore", invalid="ignore"):  # a chart fitted exactly: s = 0 / 0 -> weight 1
         s = residual / state["noise"][:, None]
     post = inlier_posterior(s, neighbours, r, settings.mixture_window)
-    per_copy = np.repeat(np.nan_to_num(post, nan=1.0), settings.n_folds, axis=0)
+    per_copy = np.repeat(np.nan_to_num(post, nan=1.0), settings.n_folds + 1, axis=0)
     return rows.gather(torch.as_tensor(per_copy, device=rows.t.device))
 
 
@@ -1120,7 +1091,7 @@ def _heldout_prediction(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
     x, t : (M, n, 2), (M, n) tensors
         Every copy's points and heights.
     fold : (C, n) int array
-        Fold of each point (fold network ``fold`` of its chart never trained on it).
+        Fold of each point (fold network ``1 + fold`` of its chart never trained on it).
 
     Returns
     -------
@@ -1128,7 +1099,7 @@ def _heldout_prediction(nets: HeightFieldNets, x: torch.Tensor, t: torch.Tensor,
     """
     n_charts, n_max = fold.shape
     pred = nets(x).reshape(n_charts, -1, n_max)
-    heldout = torch.gather(pred, 1, torch.as_tensor(fold, device=x.device)[:, None])[:, 0]
+    heldout = torch.gather(pred[:, 1:], 1, torch.as_tensor(fold, device=x.device)[:, None])[:, 0]
     return t.reshape(n_charts, -1, n_max)[:, 0], heldout
 
 
@@ -1140,7 +1111,7 @@ def _update_cutoffs(nets, x, t, valid, fold, settings, rng, cut, sigma_floor, de
     never grow.
     """
     n_charts, n_max = valid.shape
-    k = settings.n_folds
+    k = settings.n_folds + 1
     z, heldout = (v.double().cpu().numpy() for v in _heldout_prediction(nets, x, t, fold))
     residual = np.where(valid, z - heldout, np.nan)
     const = settings.constants

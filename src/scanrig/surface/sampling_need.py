@@ -20,9 +20,9 @@ Three criteria, each a per-node number where larger means "sample here":
     ``median density / density``: inliers per square metre of surface (from the ``k`` nearest
     inliers), relative to the cloud's median.
 ``spread``
-    ``std / tolerance``: standard deviation, over the chart's fold networks, of the fitted
-    height (the fold networks see disjoint halves of the data: a half-sampling bootstrap, our
-    choice; it grows in gaps and at borders).
+    ``std / tolerance``: standard deviation, over the chart's full and fold networks, of the
+    fitted height (the fold networks see disjoint halves of the data: a half-sampling
+    bootstrap, our choice; it grows in gaps and at borders).
 
 ``need`` is the curvature criterion (it already folds in the density through ``h_actual``);
 ``need > 1`` marks nodes sampled more coarsely than the tolerance allows. The scan planner
@@ -119,8 +119,7 @@ def sampling_need(result, *, tolerance: float, step: float | None = None, k: int
     padded = np.zeros((len(result.charts), m_max, 2))
     for c, uv in enumerate(uv_nodes):
         padded[c, :len(uv)] = uv / result.uv_scale[c]
-    heights = result.fits.predict(padded, folds=True)  # (C, n_folds, m)
-    surface = heights.mean(axis=1)  # the charts' surfaces, (C, m)
+    heights = result.fits.predict(padded, folds=True)  # (C, K + 1, m)
     grad, hess = result.fits.height_derivatives(padded)
 
     rows = []
@@ -130,7 +129,7 @@ def sampling_need(result, *, tolerance: float, step: float | None = None, k: int
         g = grad[c, :m] * zs / us
         h = hess[c, :m] * zs / us**2
         kappa = _max_principal_curvature(g, h)
-        pos = chart.from_chart(np.column_stack([uv, surface[c, :m] * zs]))
+        pos = chart.from_chart(np.column_stack([uv, heights[c, 0, :m] * zs]))
         n_local = np.column_stack([-g, np.ones(m)]) / np.sqrt(1 + (g**2).sum(axis=1))[:, None]
         members = chart.members[result.inlier[chart.members]]
         spacing = _mesh_spacing(chart.to_chart(result.denoised[members])[:, :2], uv)
