@@ -42,7 +42,7 @@ from scipy.interpolate import LinearNDInterpolator
 
 from scanrig.surface.charts import MIN_CHART_POINTS, estimate_normals, split_charts
 from scanrig.surface.filter import filter_points, project_on_surface
-from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.fit_settings import FitSettings
 from scanrig.surface.sampling_need import sampling_need
 from scanrig.surface.sheets import split_sheets
 

@@ -37,7 +37,7 @@ from scipy.stats import wilcoxon
 
 from bench_filter import SIGMA, SURFACES, WIDE_GHOSTS, protocol_q, sample, step_width, surface_error, surface_of
 from scanrig.surface.filter import filter_points
-from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.fit_settings import FitSettings
 
 FRACTIONS = (0.0, 0.1, 0.2, 0.4)
 CELLS = tuple(SURFACES) + WIDE_GHOSTS

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.fit_settings import FitSettings
 
 SIGMA = 0.01  # inlier noise, metres
 # Small network and short schedule so a fit takes seconds; the accuracy checks below are

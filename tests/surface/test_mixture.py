@@ -11,7 +11,7 @@ from scanrig.errors import InputError
 from scanrig.surface.filter import filter_points
 from scanrig.surface.hampel import hampel_weight
 from scanrig.surface.mixture import chart_neighbours, inlier_posterior
-from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.fit_settings import FitSettings
 
 from .conftest import FAST, SIGMA
 

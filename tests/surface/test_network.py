@@ -14,10 +14,12 @@ from hypothesis import given, settings as hypothesis_settings, strategies as st
 from scanrig.errors import InputError
 from scanrig.surface.network import HeightFieldNets
 from scanrig.surface.hampel import hampel_weight
-from scanrig.surface.robust_fit import (FitSettings, _Active, _adam, _Blocks, _bounded_by_heldout,
-                                      _heldout_prediction, _irls_weight, _output_layer_irls, _robust_loss,
-                                      _size_batches, _weighted_least_squares, _weighted_solve, concatenate_fits,
-                                      fit_charts, fit_charts_by_size)
+from scanrig.surface.chart_batches import _size_batches, fit_charts_by_size
+from scanrig.surface.fit_settings import FitSettings
+from scanrig.surface.output_layer import weighted_solve
+from scanrig.surface.robust_fit import (_Active, _adam, _Blocks, _bounded_by_heldout, _heldout_prediction,
+                                      _irls_weight, _output_layer_irls, _robust_loss, _weighted_least_squares,
+                                      concatenate_fits, fit_charts)
 
 from .conftest import SIGMA, tilted_plane_with_outliers
 
@@ -195,7 +197,7 @@ def test_weighted_solve_matches_numpy_least_squares():
     feats = torch.rand(4, 5, 50, generator=gen)  # copy c's points in blocks 2c and 2c + 1
     t = torch.randn(4, 50, generator=gen)
     weight = torch.rand(4, 50, generator=gen, dtype=torch.float64)
-    coef = _weighted_solve(feats, t, weight.sqrt(), torch.tensor([0, 0, 1, 1]), 2).numpy()
+    coef = weighted_solve(feats, t, weight.sqrt(), torch.tensor([0, 0, 1, 1]), 2).numpy()
     for c in range(2):
         f = feats[2 * c: 2 * c + 2].transpose(1, 2).reshape(-1, 5).double().numpy()
         f = np.column_stack([f, np.ones(len(f))])  # the bias
@@ -292,7 +294,7 @@ def test_monotone_output_layer_irls_never_raises_a_weight_and_leaves_the_optimum
     assert torch.all(capped <= weight)
     with torch.no_grad():
         feats = nets.features(rows.x, rows.owner)
-        optimum = _weighted_solve(feats, rows.t, capped.sqrt(), rows.owner, rows.n_copies).float()
+        optimum = weighted_solve(feats, rows.t, capped.sqrt(), rows.owner, rows.n_copies).float()
     torch.testing.assert_close(nets.weights[-1][:, :, 0], optimum[:, :-1], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(nets.biases[-1][:, 0, 0], optimum[:, -1], rtol=1e-5, atol=1e-6)
 
@@ -375,10 +377,10 @@ def test_a_copy_keeps_its_cholesky_solution_when_another_copy_of_the_batch_needs
     lu_systems = []
     lu = torch.linalg.solve
     monkeypatch.setattr(torch.linalg, "solve", lambda a, b: lu_systems.append(len(a)) or lu(a, b))
-    beside_singular = _weighted_solve(feats[:2], t[:2], weight[:2].sqrt(), owner, 2)
+    beside_singular = weighted_solve(feats[:2], t[:2], weight[:2].sqrt(), owner, 2)
     assert lu_systems == [1]  # copy 1 alone went to LU
-    beside_posed = _weighted_solve(feats[[0, 2]], t[[0, 2]], weight[[0, 2]].sqrt(), owner, 2)
+    beside_posed = weighted_solve(feats[[0, 2]], t[[0, 2]], weight[[0, 2]].sqrt(), owner, 2)
     assert torch.equal(beside_singular[0], beside_posed[0])
-    alone = _weighted_solve(feats[1:2], t[1:2], weight[1:2].sqrt(), torch.tensor([0]), 1)[0]
+    alone = weighted_solve(feats[1:2], t[1:2], weight[1:2].sqrt(), torch.tensor([0]), 1)[0]
     assert torch.isfinite(beside_singular[1]).all()
     torch.testing.assert_close(beside_singular[1], alone)

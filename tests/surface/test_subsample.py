@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from scanrig.errors import InputError
-from scanrig.surface.robust_fit import FitSettings, fit_charts_by_size
+from scanrig.surface.chart_batches import fit_charts_by_size
+from scanrig.surface.fit_settings import FitSettings
 from scanrig.surface.subsample import stratified_subsample
 
 from .conftest import SIGMA, tilted_plane_with_outliers

@@ -4,8 +4,9 @@ import numpy as np
 import torch
 
 import scanrig.surface.filter as filter_module
-import scanrig.surface.robust_fit as robust_fit
-from scanrig.surface.robust_fit import FitSettings, fit_charts_by_size
+import scanrig.surface.chart_batches as chart_batches
+from scanrig.surface.chart_batches import fit_charts_by_size
+from scanrig.surface.fit_settings import FitSettings
 from scanrig.surface.tiles import split_tiles
 
 from .conftest import FAST, SIGMA, tilted_plane_with_outliers
@@ -62,7 +63,7 @@ def test_chart_groups_give_the_same_fits_side_by_side_or_one_after_the_other(mon
     z = [0.3 * p[:, 0] + rng.normal(0, SIGMA, n) for p, n in zip(uv, sizes)]
     settings = FitSettings(hidden=6, depth=1, epochs=40, robust_epochs=40, update_every=20, start_epochs=10,
                            n_boot=50)
-    monkeypatch.setattr(robust_fit, "FIT_GROUPS_MIN_POINTS", 0)
+    monkeypatch.setattr(chart_batches, "FIT_GROUPS_MIN_POINTS", 0)
     fits = []
     for threads in (1, 2):  # 2: the groups train in two threads
         torch.set_num_threads(threads)
@@ -83,13 +84,13 @@ def test_one_group_trains_on_one_thread_whatever_the_thread_count(monkeypatch):
     settings = FitSettings(hidden=6, depth=1, epochs=40, robust_epochs=40, update_every=20, start_epochs=10,
                            n_boot=50)
     seen = []
-    fit_batches = robust_fit._fit_batches
+    fit_batches = chart_batches._fit_batches
 
     def recording(*args, **kwargs):
         seen.append(torch.get_num_threads())
         return fit_batches(*args, **kwargs)
 
-    monkeypatch.setattr(robust_fit, "_fit_batches", recording)
+    monkeypatch.setattr(chart_batches, "_fit_batches", recording)
     fits = []
     for threads in (1, 2):
         torch.set_num_threads(threads)

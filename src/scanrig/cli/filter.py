@@ -43,7 +43,7 @@ def command(
     from scanrig.surface.filter import filter_points
     from scanrig.surface.hampel import check_q
     from scanrig.surface.meshing import mesh_from_result
-    from scanrig.surface.robust_fit import FitSettings
+    from scanrig.surface.fit_settings import FitSettings
 
     check_q(q)
     if sigma_floor_mm < 0:

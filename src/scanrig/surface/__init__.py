@@ -10,7 +10,7 @@ extra).
 from scanrig.surface.filter import FilterResult, filter_points
 from scanrig.surface.hampel import HampelConstants
 from scanrig.surface.meshing import mesh_from_result
-from scanrig.surface.robust_fit import FitSettings
+from scanrig.surface.fit_settings import FitSettings
 from scanrig.surface.sampling_need import SamplingNeedMap, sampling_need
 
 __all__ = ["FilterResult", "FitSettings", "HampelConstants", "SamplingNeedMap", "filter_points",

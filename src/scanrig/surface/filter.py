@@ -13,7 +13,9 @@ from scanrig.surface.charts import (MIN_CHART_POINTS, Chart, blend_weights, esti
                                     split_charts)
 from scanrig.surface.hampel import check_q, refined_scale
 from scanrig.surface.memory import keep_freed_memory
-from scanrig.surface.robust_fit import ChartFits, FitSettings, concatenate_fits, fit_charts_by_size
+from scanrig.surface.chart_batches import fit_charts_by_size
+from scanrig.surface.fit_settings import FitSettings
+from scanrig.surface.robust_fit import ChartFits, concatenate_fits
 from scanrig.surface.sheets import split_sheets
 from scanrig.surface.sparse import SPARSE_CHART_POINTS, SUPPORT_POINTS, local_quadratic_scores
 from scanrig.surface.surroundings import surroundings_score

@@ -42,186 +42,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from scanrig.errors import InputError
 from scanrig.surface.adam import Adam
-from scanrig.surface.hampel import HampelConstants, check_q, hampel_rho, hampel_weight, robust_scale
+from scanrig.surface.fit_settings import HUBER_K, FitSettings
+from scanrig.surface.hampel import hampel_rho, hampel_weight, robust_scale
 from scanrig.surface.local_start import fill_with_quadratic, robust_start
 from scanrig.surface.mixture import chart_neighbours, inlier_posterior
 from scanrig.surface.network import HeightFieldNets
+from scanrig.surface.output_layer import output_heights, weighted_solve
 from scanrig.surface.subsample import stratified_subsample
-
-LOSSES = ("hampel", "mse", "huber")
-HUBER_K = 1.345  # Huber's cut-off in units of sigma: 95 % Gaussian efficiency
-#: Fixed cost of fitting one batch of charts, in padded points: a batch of one small chart took
-#: 0.85 s (the schedule's ~460 epochs of Python and dispatch, with 200 Hampel epochs) against
-#: 0.31 ms per padded point in large batches (100 000 points, 2 cores, measured).
-BATCH_OVERHEAD_POINTS = 2500
-#: Groups of charts that :func:`fit_charts_by_size` trains side by side (the cores of the 2-core
-#: machine the filter is benchmarked on); fixed, so that results do not depend on the threads.
-FIT_GROUPS = 2
-#: Fewest chart members (summed) that are dealt into ``FIT_GROUPS`` groups; below, one group.
-FIT_GROUPS_MIN_POINTS = 20_000
-
-
-@dataclass(frozen=True)
-class FitSettings:
-    """Network, loss and training schedule of the robust fit.
-
-    Attributes
-    ----------
-    q : float
-        Tolerated fraction of bad data in (0, 0.5]: breakdown point of the noise scale (of the
-        start and of every update).
-    loss : {"hampel", "mse", "huber"}
-        ``"hampel"`` is the robust method; ``"mse"`` and ``"huber"`` are the baselines (same
-        network, ``epochs`` epochs, no robust start and no reweighting step).
-    architecture, hidden, depth : str, int, int
-        Network, see :class:`~scanrig.surface.network.HeightFieldNets`.
-    n_folds : int
-        Folds for the held-out residuals (>= 2).
-    start_neighbours : int
-        Neighbours of the local trimmed planes of the robust start (``"hampel"`` only, see
-        :mod:`scanrig.surface.local_start`).
-    start_epochs : int
-        Epochs of least squares on the start's good points, the others replaced by the chart's
-        quadratic through them (:func:`~scanrig.surface.local_start.fill_with_quadratic`), before
-        the Hampel loss.
-    robust_epochs : int
-        Full-batch epochs of back-propagation on the Hampel loss (``"hampel"``). 160: with the
-        reweighting step after them, 200 gave the same accuracy (mean over the 24 protocol
-        cells and three weight seeds 1.0375 times the oracle both) in 8 % more time; 120 was
-        worse (1.0414, plane at 40 % 1.29).
-    warmup_epochs : int
-        Epochs over which the Hampel phase's Adam step rises linearly to ``learning_rate``
-        (``"hampel"``; 0 = none). A fresh Adam moves every weight by the full step from the
-        first epoch, whatever its gradient, and threw a started fit out of its basin (saddle
-        at 10 %, weight seed 5: from 0.6 sigma to 4 sigma in 30 epochs, final 2.3 times the
-        oracle; 1.05 times with 50 warm-up epochs, 20 were not enough).
-    update_every : int
-        Epochs between updates of the noise scale and the cut-offs.
-    final_irls : int
-        Iteratively reweighted least-squares steps of the output layer after the last epoch.
-    epochs : int
-        Full-batch epochs of least-squares training: the baselines' whole training (``"mse"``;
-        ``"huber"`` on its loss).
-    refit : bool
-        Reweighting step (``"hampel"`` only): the final robust weights frozen, the networks
-        trained on from the Hampel phase's hidden layers by weighted least squares.
-    refit_epochs, refit_step, refit_warmup_epochs : int, float, int
-        Schedule of the reweighting step: its epochs, its Adam step as a fraction of
-        ``learning_rate`` and the epochs of its linear warm-up. Trained on from the Hampel
-        phase instead of retrained from the initial weights for ``epochs`` (200) at the full
-        step, it needs fewer epochs: the 100 000-point scan 1.25x less CPU (the 64 x 64
-        protocol cells at 10 and 20 %, two data draws: mean ratio to the oracle 0.957 and
-        0.997 instead of 1.006 and 1.017, worst 1.093 instead of 1.116). At the full step
-        (200 epochs, 20 warm-up) the sphere and the crease went to 1.13-1.19.
-    learning_rate : float
-        Adam step at the start; it decays by cosine to ``learning_rate / 20``.
-    constants : HampelConstants
-        ``(p, r, gamma)`` of the tanh estimator.
-    scale_cut : float
-        Truncation, in units of the scale, of the refinement steps of the noise scale
-        (:func:`~scanrig.surface.hampel.robust_scale`); below the rejection point ``r`` so that
-        one-sided outliers just beyond ``r`` sigma cannot inflate it.
-    n_boot : int
-        Bootstrap resamples for the upper bound of the noise scale.
-    alpha : float
-        One-sided level of that bound.
-    mixture_neighbours : int
-        Neighbours (in the chart plane) of the local mixture that weighs each point by its
-        posterior probability of being an inlier before the reweighting step and in the last
-        output-layer steps (:mod:`scanrig.surface.mixture`; ``"hampel"`` with ``refit`` only;
-        0 = off). It takes out part of the one-sided outliers inside the noise band: over the
-        24 protocol cells and weight seeds 0-5, crease at 20 % 1.155 -> 1.100 times the oracle
-        (worst seed 1.201 -> 1.150), at 40 % 1.193 -> 1.126 (1.315 -> 1.200), mean of all cells
-        1.016 -> 1.007 (seeds 0-2) and 1.010 -> 1.005 (3-5). On the crease at 20 and 40 %
-        (seeds 0-1, residuals then scaled by the cut-off), 50 or 200 neighbours were within
-        0.04 of 100.
-    mixture_window : float
-        The outliers' density per unit residual is counted over ``(r, mixture_window * r]``
-        noise scales (> 1); 1.25 was within 0.01 of 1.5 on the crease as above.
-    converge_every : int
-        Epochs between convergence checks of the weighted least-squares phases (``"hampel"``:
-        the start and the reweighting step; 0 = none): a network whose loss fell by less than
-        ``converge_tol`` of itself since the last check stops there and leaves the batch
-        (``_Active``). The cosine schedule keeps lowering every loss a little to its end; most
-        networks stop after half of it or less. The Hampel phase is checked alike, see
-        ``robust_converge_checks``.
-    converge_tol : float
-        Relative fall of the loss below which a network counts as converged.
-    robust_converge_checks : int
-        Checks in a row that a network's Hampel loss must pass to stop in the Hampel phase
-        (``"hampel"``; 0 = that phase is not checked). One was not enough: its cut-offs shrink
-        and its weights settle over the first epochs, and a loss that paused there stopped the
-        saddle (32 x 32, 20 % outliers, seed 0) at 1.15 times the oracle instead of 1.00
-        (``converge_tol`` 0.001: 1.15 as well); with two, 1.00.
-    train_points : int
-        Most points each network's hidden layers train on (0 = all): a copy with more is given a
-        subsample spread over its chart's area (:func:`~scanrig.surface.subsample.stratified_subsample`),
-        while the output layer's last steps, the reweighting step's weights, the noise scale and
-        the scores use every point. Off by default: the default network's effective degrees of
-        freedom on a plane are ~150-200 (0.37 sigma from 1024 points, 0.56-0.59 from 600), so
-        points beyond a few thousand still lower its error. On the 100 000-point scan (seeds
-        0-2) 2000 took 1.2-1.4x less CPU, denoised inliers 0.266 and 0.275 sigma instead of
-        0.263 and 0.267 and recall 0.916 and 0.940 instead of 0.946 and 0.938 (seeds 0 and 2).
-    """
-
-    q: float = 0.25
-    loss: str = "hampel"
-    architecture: str = "mlp"
-    hidden: int = 24
-    depth: int = 2
-    n_folds: int = 2
-    start_neighbours: int = 24
-    start_epochs: int = 60
-    robust_epochs: int = 160
-    warmup_epochs: int = 50
-    update_every: int = 40
-    final_irls: int = 5
-    epochs: int = 200
-    refit: bool = True
-    refit_epochs: int = 100
-    refit_step: float = 0.3
-    refit_warmup_epochs: int = 20
-    learning_rate: float = 0.01
-    constants: HampelConstants = field(default_factory=HampelConstants)
-    scale_cut: float = 2.5
-    n_boot: int = 200
-    alpha: float = 0.05
-    mixture_neighbours: int = 100
-    mixture_window: float = 1.5
-    converge_every: int = 20
-    converge_tol: float = 3e-3
-    robust_converge_checks: int = 2
-    train_points: int = 0
-
-    def __post_init__(self):
-        check_q(self.q)
-        if self.loss not in LOSSES:
-            raise InputError(f"loss must be one of {LOSSES}, got {self.loss!r}")
-        if self.n_folds < 2:
-            raise InputError(f"n_folds must be >= 2, got {self.n_folds}")
-        if min(self.epochs, self.robust_epochs, self.update_every, self.final_irls) < 1:
-            raise InputError("epochs, robust_epochs, update_every and final_irls must be >= 1")
-        if min(self.refit_epochs, self.refit_warmup_epochs) < 0 or not self.refit_step > 0:
-            raise InputError(f"refit_epochs and refit_warmup_epochs must be >= 0 and refit_step > 0, got "
-                             f"{self.refit_epochs}, {self.refit_warmup_epochs}, {self.refit_step}")
-        if min(self.start_epochs, self.warmup_epochs, self.mixture_neighbours) < 0:
-            raise InputError(f"start_epochs, warmup_epochs and mixture_neighbours must be >= 0, got "
-                             f"{self.start_epochs}, {self.warmup_epochs}, {self.mixture_neighbours}")
-        if self.train_points < 0:
-            raise InputError(f"train_points must be >= 0, got {self.train_points}")
-        if min(self.converge_every, self.robust_converge_checks) < 0:
-            raise InputError(f"converge_every and robust_converge_checks must be >= 0, got "
-                             f"{self.converge_every}, {self.robust_converge_checks}")
-        if not self.mixture_window > 1.0:
-            raise InputError(f"mixture_window must be > 1, got {self.mixture_window}")
 
 
 @dataclass
@@ -405,9 +239,9 @@ class _Blocks:
         layers = nets.training_activations(self.x, self.owner)
         feats = layers[-1][:, :-1]
         root = weight.sqrt() if root_weight is None else root_weight
-        coef = _weighted_solve(feats, self.t, root, self.owner, self.n_copies)
+        coef = weighted_solve(feats, self.t, root, self.owner, self.n_copies)
         nets.set_output(coef)
-        return self.t - _output(feats, coef[self.owner]), layers
+        return self.t - output_heights(feats, coef[self.owner]), layers
 
     def backward(self, nets: HeightFieldNets, layers: list[torch.Tensor], grad_residual: torch.Tensor) -> None:
         """Set the hidden layers' gradients from the loss's gradient with respect to the residuals
@@ -632,128 +466,6 @@ def fit_charts(uv: np.ndarray, z: np.ndarray, valid: np.ndarray, *, settings: Fi
                      beta=final["beta"], history=history)
 
 
-def fit_charts_by_size(uv: list[np.ndarray], z: list[np.ndarray], *, settings: FitSettings,
-                       rng: np.random.Generator, train_mask: list[np.ndarray] | None = None,
-                       sigma_floor: np.ndarray | float = 0.0, device: str = "cpu",
-                       overhead_points: float = BATCH_OVERHEAD_POINTS) -> ChartFits:
-    """:func:`fit_charts` on charts of different sizes, in batches that waste little time.
-
-    A batch pads every chart to its largest; a cloud's charts range from tens to thousands of
-    points (a real stripe scan: 34 to 5600), and one batch of all of them was 25-50x its points
-    in rows, nearly all padding, while one batch per size cost a fixed overhead each. The
-    charts, sorted by size, are cut into the batches that minimise the modelled time
-    ``sum(overhead_points + n_max * n_charts)`` (dynamic programming, :func:`_size_batches`);
-    the fits are merged in input order. Each chart's fit is independent of its batch (same
-    schedule, its own weights).
-
-    The charts of a cloud of at least ``FIT_GROUPS_MIN_POINTS`` members, sorted by size, are dealt
-    alternately into ``FIT_GROUPS`` groups of about equal work, the first drawing from ``rng``,
-    the others from generators spawned from it (a smaller cloud is one group: its results, on
-    which the protocol's figures were measured, stay those of one stream). With
-    torch's intra-op threads at ``FIT_GROUPS`` or more, the groups train at the same time, one
-    thread each: the networks' operations are too small to keep two threads of one operation
-    busy, and whole groups side by side are not. On the CPU every group trains on one torch
-    thread (torch's threads set to 1 meanwhile), a single group too: split among threads, a
-    matrix product or a sum adds in an order that depends on the thread count and the batch's
-    shape, and a network's early stop (``converge_every``) turns such last-bit differences into
-    different fits. So the arithmetic, and the result, do not depend on the thread count.
-
-    Parameters
-    ----------
-    uv : list of (n_c, 2) float arrays
-        Normalised coordinates of each chart's members.
-    z : list of (n_c,) float arrays
-        Normalised heights.
-    settings, rng, sigma_floor, device
-        As in :func:`fit_charts`.
-    train_mask : list of (n_c,) bool arrays, optional
-        As in :func:`fit_charts`, per chart.
-    overhead_points : float
-        Fixed cost of a batch, in padded points.
-
-    Returns
-    -------
-    ChartFits
-        Arrays padded to the largest chart, charts in input order.
-    """
-    sizes = np.array([len(h) for h in z])
-    floor = np.broadcast_to(np.asarray(sigma_floor, dtype=float), sizes.shape)
-    order = np.argsort(-sizes, kind="stable")
-    n_groups = FIT_GROUPS if sizes.sum() >= FIT_GROUPS_MIN_POINTS else 1
-    dealt = [np.sort(order[i::n_groups]) for i in range(n_groups) if i < len(order)]
-    generators = [rng, *rng.spawn(len(dealt) - 1)]
-
-    def fit_group(charts: np.ndarray, group_rng: np.random.Generator) -> ChartFits:
-        return _fit_batches([uv[c] for c in charts], [z[c] for c in charts], settings=settings,
-                            rng=group_rng, train_mask=None if train_mask is None else [train_mask[c] for c in charts],
-                            sigma_floor=floor[charts], device=device, overhead_points=overhead_points)
-
-    if device != "cpu":
-        parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
-        return concatenate_fits(parts, np.argsort(np.concatenate(dealt)))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        if len(dealt) > 1 and threads >= FIT_GROUPS:
-            with ThreadPoolExecutor(len(dealt)) as pool:
-                parts = list(pool.map(fit_group, dealt, generators))
-        else:
-            parts = [fit_group(charts, group_rng) for charts, group_rng in zip(dealt, generators)]
-    finally:
-        torch.set_num_threads(threads)
-    return concatenate_fits(parts, np.argsort(np.concatenate(dealt)))
-
-
-def _fit_batches(uv: list[np.ndarray], z: list[np.ndarray], *, settings: FitSettings, rng: np.random.Generator,
-                 train_mask: list[np.ndarray] | None, sigma_floor: np.ndarray, device: str,
-                 overhead_points: float) -> ChartFits:
-    """One group of charts of :func:`fit_charts_by_size` (arguments as there, ``sigma_floor``
-    (C,)), in batches of similar size one after the other; fits in the group's order."""
-    sizes = np.array([len(h) for h in z])
-    groups = _size_batches(sizes, overhead_points)
-    parts = []
-    for group in groups:
-        n_max = sizes[group].max()
-        uv_g = np.zeros((len(group), n_max, 2))
-        z_g = np.zeros((len(group), n_max))
-        valid = np.zeros((len(group), n_max), dtype=bool)
-        mask = None if train_mask is None else np.zeros((len(group), n_max), dtype=bool)
-        for row, c in enumerate(group):
-            uv_g[row, :sizes[c]], z_g[row, :sizes[c]], valid[row, :sizes[c]] = uv[c], z[c], True
-            if mask is not None:
-                mask[row, :sizes[c]] = train_mask[c]
-        parts.append(fit_charts(uv_g, z_g, valid, settings=settings, rng=rng, train_mask=mask,
-                                sigma_floor=sigma_floor[group], device=device))
-    return concatenate_fits(parts, np.argsort(np.concatenate(groups)))
-
-
-def _size_batches(sizes: np.ndarray, overhead: float) -> list[np.ndarray]:
-    """Cut charts into batches minimising ``sum(overhead + largest size * count)``.
-
-    Parameters
-    ----------
-    sizes : (C,) int array
-    overhead : float
-        Fixed cost of a batch, in padded points.
-
-    Returns
-    -------
-    list of int arrays
-        Chart indices of each batch, largest charts first.
-    """
-    order = np.argsort(-sizes, kind="stable")
-    s = sizes[order].astype(float)
-    best = np.zeros(len(s) + 1)
-    start = np.zeros(len(s) + 1, dtype=int)
-    for end in range(1, len(s) + 1):  # a batch [j, end) of the sorted sizes is padded to s[j]
-        cost = best[:end] + overhead + s[:end] * (end - np.arange(end))
-        start[end] = np.argmin(cost)
-        best[end] = cost[start[end]]
-    batches, end = [], len(s)
-    while end > 0:
-        batches.append(order[start[end]:end])
-        end = start[end]
-    return batches[::-1]
 
 
 def concatenate_fits(parts: list[ChartFits], rows: np.ndarray) -> ChartFits:
@@ -913,15 +625,15 @@ def _output_layer_irls(nets, rows: _Blocks, weight: torch.Tensor, settings: FitS
     with torch.no_grad():
         feats = nets.features(rows.x, rows.owner)
         for _ in range(settings.final_irls):
-            coef = _weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies)
-            residual = rows.t - _output(feats, coef[rows.owner])
+            coef = weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies)
+            residual = rows.t - output_heights(feats, coef[rows.owner])
             weight = _irls_weight(residual, rows.m, settings.loss, cuts)
             if monotone:
                 weight = torch.minimum(weight, given)
             if neighbours is not None:
                 full = rows.scatter(residual.double(), neighbours.shape[1])[:: settings.n_folds + 1]
                 weight = weight * _mixture_weights(rows, neighbours, full.cpu().numpy(), settings, state)
-        nets.set_output(_weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies))
+        nets.set_output(weighted_solve(feats, rows.t, weight.sqrt(), rows.owner, rows.n_copies))
     return weight
 
 
@@ -946,108 +658,6 @@ def _mixture_weights(rows: _Blocks, neighbours: np.ndarray, residual: np.ndarray
     return rows.gather(torch.as_tensor(per_copy, device=rows.t.device))
 
 
-def _weighted_solve(feats: torch.Tensor, t: torch.Tensor, root_weight: torch.Tensor, owner: torch.Tensor,
-                    n_copies: int) -> torch.Tensor:
-    """Weighted least-squares output layer of every copy: (M, H + 1) float64 (last = bias), no gradient.
-
-    Solves ``(F^T W F + lambda I) c = F^T W t`` for the features ``F`` with a constant column,
-    summing the normal equations of each copy's blocks, with a tiny ridge ``lambda`` relative
-    to the trace for copies whose features are nearly collinear. The normal equations are
-    formed in float32 from the features and heights less their weighted means over the copy
-    (:func:`_centred_rows`), then solved in float64 and the bias moved back: 0.6 of the time of
-    float64 normal equations (20 blocks of 2073 points, one thread, measured). Centred,
-    because a trained network's units are nearly constant over a chart and float32 rounds
-    relative to the uncentred products: at the features of networks trained by least squares
-    on clean 64 x 64 surfaces (sphere, saddle, scan, plane, two seeds each), uncentred float32
-    moved the fit by up to 0.074 sigma from float64's; centred, with 20 % zero weights, by at
-    most 0.012 sigma (0.026 at the edge of a step), and the fits' errors stayed those of
-    float64 to 0.013 sigma.
-
-    Parameters
-    ----------
-    feats : (V, H, L) tensor
-        Unit-major features of each block (:meth:`HeightFieldNets.features`).
-    t : (V, L) tensor
-        Target heights.
-    root_weight : (V, L) float64 tensor
-        Square roots of the weights (taken by the caller: in a phase of fixed weights, once;
-        they were 8 % of the filter's time under cProfile when taken every epoch).
-    owner : (V,) int tensor
-        Copy of each block.
-    n_copies : int
-    """
-    size = feats.shape[1]
-    rows, mean_f, mean_t = _centred_rows(feats.detach(), t, root_weight.float(), owner, n_copies)
-    # one product gives the normal matrix and the right-hand side: [F 1 t]^T W [F 1 t], with the
-    # points along the contiguous axis (a third faster than F^T (W F) plus F^T (W t))
-    normal = torch.zeros(n_copies, size + 2, size + 2, dtype=torch.float64, device=feats.device).index_add_(
-        0, owner, (rows @ rows.transpose(1, 2)).double())
-    gram, rhs = normal[:, :size + 1, :size + 1], normal[:, :size + 1, size + 1]
-    diagonal = gram.diagonal(dim1=1, dim2=2)
-    # the ridge relative to the trace of the uncentred normal matrix, as if formed uncentred
-    # (the centred trace is far smaller, and its ridge let collinear units take large coefficients)
-    trace = diagonal.sum(dim=1) + gram[:, size, size] * mean_f.double().square().sum(dim=1)
-    diagonal.add_(1e-9 * trace[:, None].clamp(min=1e-12))
-    # the ridge makes every system positive definite: Cholesky, 1.5x faster than LU on these
-    # 25 x 25 systems; LU only for the copies where rounding defeats it (copies with fewer points
-    # than units, e.g. the fold networks of the 30-60-point pieces of reflection blobs)
-    factor, info = torch.linalg.cholesky_ex(gram)
-    coef = torch.cholesky_solve(rhs[..., None], factor)[..., 0]
-    failed = torch.nonzero(info)[:, 0]
-    if len(failed):
-        coef[failed] = torch.linalg.solve(gram[failed], rhs[failed])
-    # c . (f - mean_f) + c0 = c . f + (c0 - c . mean_f), fitted to t - mean_t
-    coef[:, size] += mean_t.double() - (coef[:, :size] * mean_f.double()).sum(dim=1)
-    return coef
-
-
-def _centred_rows(feats: torch.Tensor, t: torch.Tensor, root_weight: torch.Tensor, owner: torch.Tensor,
-                  n_copies: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``W^(1/2) [F - mean_f, 1, t - mean_t]`` per block, float32, and the copies' weighted means.
-
-    Parameters
-    ----------
-    feats : (V, H, L) float32 tensor
-    t : (V, L) float32 tensor
-    root_weight : (V, L) float32 tensor
-    owner : (V,) int tensor
-    n_copies : int
-
-    Returns
-    -------
-    rows : (V, H + 2, L) float32 tensor
-    mean_f : (M, H) float32 tensor
-        Weighted mean of each copy's features (float32: the solve is exact for any centre;
-        the nearer the mean, the smaller the rounding of the normal equations).
-    mean_t : (M,) float32 tensor
-    """
-    n_blocks, size, n = feats.shape
-    weight = root_weight.square()
-
-    def per_copy_mean(block_sums: torch.Tensor, total: torch.Tensor) -> torch.Tensor:
-        sums = torch.zeros((n_copies, *block_sums.shape[1:]), dtype=block_sums.dtype, device=block_sums.device)
-        return sums.index_add_(0, owner, block_sums) / total.reshape(-1, *[1] * (block_sums.dim() - 1))
-
-    total = torch.zeros(n_copies, dtype=weight.dtype, device=weight.device).index_add_(
-        0, owner, weight.sum(dim=1)).clamp(min=1e-30)  # a copy of zero weights: any centre
-    mean_f = per_copy_mean(torch.bmm(feats, weight[:, :, None])[..., 0], total)
-    mean_t = per_copy_mean((t * weight).sum(dim=1), total)
-    rows = torch.empty(n_blocks, size + 2, n, dtype=feats.dtype, device=feats.device)
-    torch.sub(feats, mean_f[owner][:, :, None], out=rows[:, :size]).mul_(root_weight[:, None, :])
-    rows[:, size].copy_(root_weight)
-    torch.sub(t, mean_t[owner][:, None], out=rows[:, size + 1]).mul_(root_weight)
-    return rows, mean_f, mean_t
-
-
-def _output(feats: torch.Tensor, coef: torch.Tensor) -> torch.Tensor:
-    """Output layer per block: features (V, H, L), coefficients (V, H + 1) -> heights (V, L) float32.
-
-    A batched matrix-vector product: with its backward, half the time of a broadcast product
-    and sum over the units, which forms a (V, H, L) temporary (measured, torch 2.13 on CPU,
-    one thread, 36 blocks of 2798 points).
-    """
-    coef = coef.float()
-    return torch.baddbmm(coef[:, -1:, None], coef[:, None, :-1], feats)[:, 0]
 
 
 def _irls_weight(r: torch.Tensor, m: torch.Tensor, loss: str, cuts: dict) -> torch.Tensor:
