@@ -6,7 +6,7 @@ from scipy.special import fdtri, ndtr
 
 from scanrig.laser import colour_fit
 from scanrig.laser.colour_fit import fit_clipped
-from scanrig.laser.image import ColourFrames
+from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.reflectance import EDGE_WIDTH_PX, PARAMS, STEP_LEVEL, step_is_significant, step_start, with_step
 
 from .synth import integrated, quantize

@@ -36,7 +36,7 @@ import numpy as np
 
 from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, _spd_inverse,
                                centre_misfit, fit_batch, integrated_profile, lever_misfit)
-from scanrig.laser.image import ColourFrames
+from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
 from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step

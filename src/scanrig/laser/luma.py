@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanrig.geometry.uncertainty import MAD_TO_SIGMA
-from scanrig.laser.image import ColourFrames
+from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.noise import QUANTIZATION_SIGMA, weighted_line
 
 #: Largest lag of the noise autocovariance, pixels: an 8-pixel JPEG block.
