@@ -27,7 +27,7 @@ import numpy as np
 
 from scanrig.calibration.corners_csv import write_corners_csv
 from scanrig.calibration.init import _intrinsics, _median_rms, _view_poses
-from scanrig.calibration.pipeline import solve_session
+from scanrig.calibration.session_calibration import solve_session
 from scanrig.calibration.synthetic import observe
 from scanrig.geometry.transform import RigidTransform
 from scanrig.io.rig_file import load_rig

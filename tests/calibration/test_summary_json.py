@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from scanrig.calibration.pipeline import REPORT_DIR, calibrate, write_session_outputs
+from scanrig.calibration.pipeline import REPORT_DIR, calibrate
+from scanrig.calibration.session_calibration import write_session_outputs
 from scanrig.calibration.summary import SUMMARY_FORMAT_VERSION, dropped_view_warnings
 from scanrig.calibration.synthetic import DETECTABLE_SQUARE_PX, ring_cameras, simulate
 from scanrig.io.rig_file import load_rig_info

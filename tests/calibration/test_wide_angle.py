@@ -162,7 +162,7 @@ def test_rendered_fisheye_session_calibrates_from_its_images(tmp_path):
     rendered and detected: the calibration lands within 3 sigma and 1 px of the truth, the
     wide-angle start alone within 1 px."""
     from scanrig.calibration.init_wide import wide_angle_intrinsics
-    from scanrig.calibration.pipeline import solve_session
+    from scanrig.calibration.session_calibration import solve_session
     from scanrig.sim.session_writer import simulate_session
 
     scene = load_scene("fisheye")

@@ -5,6 +5,7 @@
 """
 
 from scanrig.calibration.observations import Observations
-from scanrig.calibration.pipeline import CalibrationResult, calibrate, calibrate_session
+from scanrig.calibration.pipeline import CalibrationResult, calibrate
+from scanrig.calibration.session_calibration import calibrate_session
 
 __all__ = ["CalibrationResult", "Observations", "calibrate", "calibrate_session"]

@@ -6,7 +6,8 @@ Two sources, matched to the session's cameras by name:
   ``params_std``, when present, are the intrinsics' standard deviations) or an OpenCV FileStorage
   YAML (:mod:`scanrig.io.opencv_yaml`; no standard deviations);
 - a separate calibration of each camera alone from ``calibration_intrinsic/<camera>/`` images
-  (any target: ``calibration_intrinsic/target.toml`` when present, else the session's target).
+  (any target: ``calibration_intrinsic/target.toml`` when present, else the session's target;
+  :func:`scanrig.calibration.session_calibration.calibrate_intrinsic_folders`).
 
 The joint solve then holds those intrinsics fixed, or, with ``refine`` (``--refine-intrinsics``),
 refines them under Gaussian priors with their standard deviations
@@ -124,83 +125,6 @@ def check_size(known: KnownIntrinsics, size: tuple[int, int]) -> KnownIntrinsics
     return known
 
 
-def intrinsic_folder_cameras(session) -> list[str]:
-    """Cameras with a ``calibration_intrinsic/<camera>/`` folder, in rig order (any number of
-    them, whatever ``session.toml`` lists; none when the folder is absent).
-
-    Raises
-    ------
-    FileFormatError
-        A folder named after a camera the session's ``calibration/`` does not have.
-    """
-    from scanrig.io.session import natural_key
-
-    folder = session.root / INTRINSIC_STAGE
-    if not folder.is_dir():
-        return []
-    present = {p.name for p in folder.iterdir() if p.is_dir()}
-    rig_cameras = session.camera_names("calibration")
-    unknown = sorted(present - set(rig_cameras), key=natural_key)
-    if unknown:
-        raise FileFormatError(folder, f"cameras {unknown} have no calibration/ folder (the session's cameras: "
-                                      f"{rig_cameras})")
-    return [c for c in rig_cameras if c in present]
-
-
-def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_sizes: dict,
-                                progress_factory=None) -> dict:
-    """Calibrate each camera alone from its ``calibration_intrinsic/<camera>/`` images.
-
-    Parameters
-    ----------
-    session : scanrig.io.session.Session
-    cameras : list of str
-        Cameras to calibrate (each has a folder, see :func:`intrinsic_folder_cameras`).
-    model : str
-        Camera model (:data:`scanrig.calibration.pipeline.CALIBRATION_MODELS`).
-    image_sizes : dict
-        ``camera name -> (width, height)`` of the rig's calibration images: the intrinsic
-        images must have the same size.
-    progress_factory : callable, optional
-        ``progress_factory(total) -> advance()``, called once for all the images.
-
-    Returns
-    -------
-    dict
-        ``camera name -> KnownIntrinsics`` with the parameters' standard deviations, the
-        calibration's views and RMS, and its warnings.
-
-    Raises
-    ------
-    InputError
-        Naming the folder: too few views, no target found, another image size.
-    """
-    from scanrig.calibration.pipeline import calibrate, detect_session
-    from scanrig.targets import load_target
-
-    if not cameras:
-        return {}
-    own_target = session.root / INTRINSIC_STAGE / INTRINSIC_TARGET
-    target = load_target(own_target if own_target.is_file() else session.target_path)
-    n_images = sum(len(session.image_paths(INTRINSIC_STAGE, c)) for c in cameras)
-    advance = progress_factory(n_images) if progress_factory else None
-    out = {}
-    for name in cameras:
-        folder = f"{INTRINSIC_STAGE}/{name}"
-        obs, not_found = detect_session(session, target, [name], advance, stage=INTRINSIC_STAGE)
-        try:
-            result = calibrate(obs, target, model, cross_validate=False)
-        except InputError as exc:
-            raise InputError(f"{session.root / folder}: intrinsic calibration of {name!r} alone: {exc}") from None
-        n_views = len(np.unique(obs.shot))
-        detail = (f"{n_views} of {n_views + len(not_found)} images with the target, "
-                  f"RMS {result.bundle.rms_px():.3f} px")
-        known = KnownIntrinsics(result.rig[name], result.uncertainty.params_std[name], folder, detail,
-                                tuple(f"{folder} (calibrated alone): {w}" for w in result.warnings))
-        out[name] = check_size(known, image_sizes[name])
-    return out
-
-
 def solve_constraints(known: dict, refine: bool) -> tuple[dict, dict]:
     """How known intrinsics enter the bundle adjustment.
 
@@ -269,40 +193,6 @@ def undetermined_intrinsics(camera: str, poorly_determined: list) -> str | None:
         return None
     return (f"{camera}: intrinsics not determined by these views ({', '.join(loose)}): calibrate them "
             f"separately ({INTRINSIC_STAGE}/{camera}/ images, or --intrinsics FILE)")
-
-
-def session_intrinsics(session, image_sizes: dict, model: str, path: str | Path | None = None,
-                       refine: bool = False, progress_factory=None) -> dict:
-    """Every known intrinsics of a session: from ``path`` (``--intrinsics``) where it has the
-    camera, else from the camera's ``calibration_intrinsic/<camera>/`` images.
-
-    Parameters
-    ----------
-    session : scanrig.io.session.Session
-    image_sizes : dict
-        ``camera name -> (width, height)`` of the session's calibration images, pixels.
-    model : str
-        Model of the per-camera calibrations.
-    path : str or Path, optional
-        See :func:`read_intrinsics_file`; it must name every camera without such a folder.
-    refine : bool
-        ``--refine-intrinsics`` was asked for: there must be known intrinsics to refine.
-    progress_factory : callable, optional
-        See :func:`calibrate_intrinsic_folders`.
-
-    Returns
-    -------
-    dict
-        ``camera name -> KnownIntrinsics`` (empty without a file or folders).
-    """
-    folder_cameras = intrinsic_folder_cameras(session)
-    from_file = read_intrinsics_file(path, image_sizes, tuple(folder_cameras)) if path is not None else {}
-    if refine and not from_file and not folder_cameras:
-        raise InputError(f"--refine-intrinsics needs known intrinsics to refine: give --intrinsics FILE or "
-                         f"{INTRINSIC_STAGE}/<camera>/ images in {session.root}")
-    own = calibrate_intrinsic_folders(session, [c for c in folder_cameras if c not in from_file], model,
-                                      image_sizes, progress_factory)
-    return {**own, **from_file}
 
 
 def prior_pull_warning(camera: Camera, known: KnownIntrinsics) -> str | None:

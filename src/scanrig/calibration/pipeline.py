@@ -1,13 +1,12 @@
-"""Calibration from a session folder: detect, initialise, bundle-adjust, judge, write.
+"""Calibration from detections: initialise, bundle-adjust, judge (:func:`calibrate`).
 
-``calibrate_session`` checks every input before computing anything and writes nothing until the
-solve has succeeded: ``rig.toml`` (atomically, last) and the report folder
-``calibration_report/`` (summary, detections, outliers, residual and uncertainty plots).
+Also the target's detection in a session's images (:func:`detect_session`), the calibration's
+samples and the pose of a target in one image. A session folder's whole calibration, with its
+known intrinsics and its outputs, is :mod:`scanrig.calibration.session_calibration`.
 """
 
 from __future__ import annotations
 
-import datetime
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -273,117 +272,6 @@ def detect_session(session, target: Target, cameras: list[str] | None = None, pr
     if missing:
         raise FileFormatError(session.root / stage, f"cameras {missing} have no calibration images")
     return Observations.concatenate(parts, cameras, list(frames), sizes), not_found
-
-
-def calibrate_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
-                      cross_validate: bool = True, plots: bool = True, command_line: str = "",
-                      progress_factory=None, intrinsics: str | Path | None = None,
-                      refine_intrinsics: bool = False) -> CalibrationResult:
-    """Calibrate a session folder and write ``rig.toml`` and ``calibration_report/``.
-
-    Parameters
-    ----------
-    root : str or Path
-        Session folder (DESIGN.md §4).
-    model : str
-        Camera model for every camera (:data:`CALIBRATION_MODELS`).
-    corners_csv : path, optional
-        Use these detections (:mod:`scanrig.calibration.corners_csv`) instead of detecting;
-        image sizes are then read from the first calibration image of each camera.
-    cross_validate, plots : bool
-    command_line : str
-        Recorded in ``rig.toml``.
-    progress_factory : callable, optional
-        ``progress_factory(total) -> advance()`` for a progress display during detection.
-    intrinsics : path, optional
-        A ``rig.toml`` or OpenCV YAML whose cameras' intrinsics are held fixed (or, with
-        ``refine_intrinsics``, refined under priors with their ``params_std``); cameras with
-        ``calibration_intrinsic/<camera>/`` images are first calibrated alone from them
-        (:mod:`scanrig.calibration.intrinsics_prior`).
-    refine_intrinsics : bool
-    """
-    result, obs = solve_session(root, model, corners_csv, cross_validate, progress_factory, intrinsics,
-                                refine_intrinsics)
-    write_session_outputs(root, result, obs, plots, command_line)
-    return result
-
-
-def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | Path | None = None,
-                  cross_validate: bool = True, progress_factory=None, intrinsics: str | Path | None = None,
-                  refine_intrinsics: bool = False) -> tuple[CalibrationResult, Observations]:
-    """Detect and calibrate a session folder without writing anything.
-
-    Parameters are those of :func:`calibrate_session`. Returns the result and the detections
-    (for :func:`write_session_outputs`).
-    """
-    from scanrig.calibration.corners_csv import read_corners_csv
-    from scanrig.calibration.intrinsics_prior import session_intrinsics
-    from scanrig.io.session import Session, read_image
-    from scanrig.targets import load_target
-
-    session = Session(Path(root))
-    target = load_target(session.target_path)
-    cameras = session.camera_names("calibration")
-    not_found: list = []
-    sizes = {}
-    for cam in cameras:
-        paths = session.image_paths("calibration", cam)
-        if not paths:
-            raise FileFormatError(session.root / "calibration" / cam, "no calibration images (needed for the size)")
-        img = read_image(next(iter(paths.values())))
-        sizes[cam] = (img.shape[1], img.shape[0])
-    known = session_intrinsics(session, sizes, model, intrinsics, refine_intrinsics, progress_factory)
-    if corners_csv is not None:
-        obs = read_corners_csv(corners_csv, sizes, cameras)
-    else:
-        n_images = sum(len(session.image_paths("calibration", c)) for c in cameras)
-        advance = progress_factory(n_images) if progress_factory else None
-        obs, not_found = detect_session(session, target, cameras, advance)
-    result = calibrate(obs, target, model, cross_validate=cross_validate, known_intrinsics=known,
-                       refine_intrinsics=refine_intrinsics)
-    result.not_found = not_found
-    return result, obs
-
-
-def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Observations, plots: bool = True,
-                          command_line: str = "") -> None:
-    """Write ``calibration_report/`` and then ``rig.toml`` (atomically) of a solved session."""
-    from scanrig.calibration.corners_csv import write_corners_csv
-    from scanrig.calibration.summary import format_summary, write_outliers_csv, write_summary_json
-    from scanrig.io.atomic import write_text_atomic
-    from scanrig.io.rig_file import save_rig
-    from scanrig.io.session import Session
-
-    session = Session(Path(root))
-    target = result.target
-    report = session.root / REPORT_DIR
-    report.mkdir(exist_ok=True)
-    write_corners_csv(obs, report / "corners.csv")
-    write_outliers_csv(result, report / "outliers.csv")
-    write_text_atomic(report / "summary.txt", format_summary(result))
-    write_summary_json(result, report / "summary.json")
-    if plots:
-        from scanrig.calibration.plots import write_plots
-
-        write_plots(result, report)
-    import scanrig
-
-    metadata = {
-        "created_by": f"scanrig {scanrig.__version__}",
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "command": command_line,
-        "target_kind": target.kind,
-        "rms_px": round(result.bundle.rms_px(), 6),
-        "sigma_px": round(result.bundle.sigma_px, 6),
-        "n_observations": int(result.bundle.inliers.sum()),
-        "n_outliers": len(result.bundle.outliers),
-        "world_frame": f"target frame at shot {obs.shot_names[result.init.reference_shot]!r}",
-    }
-    if result.known_intrinsics:
-        metadata["intrinsics_from"] = {name: k.source for name, k in result.known_intrinsics.items()}
-    comments = [f"written by scanrig {scanrig.__version__} on {metadata['date']}: {command_line}",
-                f"RMS reprojection error {metadata['rms_px']} px over {metadata['n_observations']} points"]
-    save_rig(result.rig, session.rig_path, result.camera_info(), metadata, comments)
 
 
 def sample_states(result: CalibrationResult, n_samples: int, rng: np.random.Generator) -> list:

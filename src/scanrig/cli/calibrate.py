@@ -54,7 +54,7 @@ def command(
     --frames 1 --no-calibration --target chessboard --light-plane-shots 8):
     scanrig calibrate lp_session --light-plane
     """
-    from scanrig.calibration.pipeline import solve_session, write_session_outputs
+    from scanrig.calibration.session_calibration import solve_session, write_session_outputs
     from scanrig.calibration.summary import format_summary
     from scanrig.cli.progress import stage_progress
 
