@@ -12,6 +12,7 @@ parabola through the trial widths' χ² (:func:`scanrig.laser.colour_fit._refine
 import numpy as np
 
 from scanrig.laser import colour_fit, fit
+from scanrig.laser.stacked_linalg import spd_inverse
 
 from .colour_fit_calls import plain_fit_arguments
 
@@ -20,7 +21,7 @@ def _dense(res, mask):
     """The full model's dense Jacobian ``(8, 3 W, n)``, residuals ``(3 W, n)`` and ``(JᵀJ)⁻¹ (n, 8, 8)``
     at the fit's parameters (whitened pixels)."""
     residuals, jac = res.minor()
-    return jac, residuals, fit._spd_inverse(np.einsum("imn,jmn->ijn", jac, jac * mask))
+    return jac, residuals, spd_inverse(np.einsum("imn,jmn->ijn", jac, jac * mask))
 
 
 def test_the_projected_fit_reports_the_dense_covariance_and_inflates_as_the_dense_jacobian_does(monkeypatch):

@@ -12,9 +12,6 @@ import pytest
 import scanrig
 from scanrig.laser import peaks
 from scanrig.laser.fit import (
-    _cholesky_solve,
-    _gram,
-    _spd_inverse,
     fit_batch,
     minor_model_1d,
     minor_model_2d,
@@ -22,6 +19,7 @@ from scanrig.laser.fit import (
     model_2d,
 )
 from scanrig.laser.image import prepare_image
+from scanrig.laser.stacked_linalg import cholesky_solve, gram, spd_inverse
 
 from .synth import spot_image, stripe_image
 
@@ -36,7 +34,7 @@ def test_unrolled_cholesky_matches_lapack(size):
     rng = np.random.default_rng(11)
     h = _spd_stack(rng, 40, size)
     b = rng.normal(size=(40, size))
-    x = _cholesky_solve(h.transpose(1, 2, 0), b.T)
+    x = cholesky_solve(h.transpose(1, 2, 0), b.T)
     np.testing.assert_allclose(x.T, np.linalg.solve(h, b[:, :, None])[:, :, 0], rtol=1e-9, atol=1e-12)
 
 
@@ -45,7 +43,7 @@ def test_inverse_of_information_matches_lapack_and_flags_singular(n):
     rng = np.random.default_rng(12)
     jac = rng.normal(size=(4, 19, n))
     jac[2, :, 1] = 2.0 * jac[1, :, 1]  # candidate 1: two parameters not separable
-    inv = _spd_inverse(_gram(jac))
+    inv = spd_inverse(gram(jac))
     h = np.einsum("imn,jmn->nij", jac, jac)
     good = np.arange(n) != 1
     np.testing.assert_allclose(inv[good], np.linalg.inv(h[good]), rtol=1e-9)

@@ -34,12 +34,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, _spd_inverse,
-                               centre_misfit, fit_batch, integrated_profile, lever_misfit)
+from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, centre_misfit,
+                               fit_batch, integrated_profile, lever_misfit)
 from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
 from scanrig.laser.reflectance import reflectance_at, step_bounds, step_is_significant, step_start, with_step
+from scanrig.laser.stacked_linalg import spd_inverse
 
 #: Parameter order of the colour models: the profile's (centre, then widths), then per channel.
 PARAMS_1D = ("x0", "width", "a_r", "a_g", "a_b", "b_r", "b_g", "b_b")
@@ -567,7 +568,7 @@ def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, n
     def complete(p, y, w):
         _, hess, _, (amp, bg, e_g, e_1, s_gg, s_g, s_w, inv_det) = terms(p, y, w)
         k = p.shape[1]
-        reduced = _spd_inverse(hess).transpose(1, 2, 0)  # S⁻¹, (2, 2, k)
+        reduced = spd_inverse(hess).transpose(1, 2, 0)  # S⁻¹, (2, 2, k)
         # F = (a_c E_c) for the levels (a_c, then b_c): the levels' rows of (JᵀJ)⁻¹ are −Fᵀ S⁻¹ beside the
         # profile's and D⁻¹ + Fᵀ S⁻¹ F among themselves (whitened levels)
         f = np.concatenate([amp * e_g, amp * e_1], axis=1)  # (2, 6, k)

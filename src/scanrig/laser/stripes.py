@@ -29,7 +29,6 @@ from scanrig.laser.fit import (
     MIN_PEAK_DN,
     MIN_WIDTH_PX,
     FitResult,
-    _cholesky_solve,
     fit_batch,
     minor_model_1d,
     parameter_covariance,
@@ -37,6 +36,7 @@ from scanrig.laser.fit import (
 from scanrig.laser.image import prepare_image
 from scanrig.laser.peaks import direction_map, prescan, worth_scanning
 from scanrig.laser.pixels import pixel_blocks
+from scanrig.laser.stacked_linalg import cholesky_solve
 from scanrig.laser.stripe_candidates import (
     LineCandidates,
     crossed_steeply,
@@ -430,7 +430,7 @@ def _log_parabola(excess, peak, x0, width) -> None:
     moments = powers @ weight  # Σ w x^k, k = 0 .. 4
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # log = c0 + c1 x + c2 x²: normal equations (3, 3, n), singular (NaN) with fewer than three pixels
-        c = _cholesky_solve(moments[np.add.outer(np.arange(3), np.arange(3))], powers[:3] @ (weight * log))
+        c = cholesky_solve(moments[np.add.outer(np.arange(3), np.arange(3))], powers[:3] @ (weight * log))
         sampled_var = -0.5 / c[2]
         offset = c[1] * sampled_var
         width_px = np.sqrt(np.maximum(sampled_var - 1.0 / 12.0, MIN_WIDTH_PX**2))
