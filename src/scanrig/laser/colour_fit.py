@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, _edges, _misfits, _profile, centre_misfit,
-                               fit_batch, integrated_profile, lever_misfit)
+from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, centre_misfit, fit_batch, integrated_profile,
+                               lever_misfit, misfits, pixel_edges, profile_terms)
 from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
@@ -433,7 +433,7 @@ def _fit_projected(y, usable, noise, x, p0, lower, upper, n_iter=12):
     res = FitResult(params.T, info_inv, reduced.chi2_unit, reduced.dof - 6, _model_1d(x, noise), y_minor, w)
     var = info_inv[:, 0, 0].copy()
     good = np.isfinite(var)  # whitened pixels: the cost is χ², and unit variance where fitted
-    misfit = np.flatnonzero(good)[_misfits(res.chi2_unit[good], np.maximum(res.dof[good], 1))]
+    misfit = np.flatnonzero(good)[misfits(res.chi2_unit[good], np.maximum(res.dof[good], 1))]
     if misfit.size:
         var[misfit] *= _lever_1d(x, noise)(params[:, misfit], info_inv[misfit, 0].T, y_minor[:, misfit],
                                            mask[:, misfit])
@@ -451,12 +451,12 @@ def _minor(y, usable, noise):
 def _model_1d(x: np.ndarray, noise: np.ndarray):
     """The colour model along a line for :func:`scanrig.laser.fit.fit_batch` (``minor``), whitened
     by each channel's noise: ``p (8, n)`` -> ``mu (3 W, n)``, ``jac (8, 3 W, n)``."""
-    edges = _edges(x)
+    edges = pixel_edges(x)
     w = x.size
 
     def model(p):
         prof = np.empty((3, w, p.shape[1]))
-        _profile(edges, p[0], p[1], prof)  # g, dg/dx0, dg/ds
+        profile_terms(edges, p[0], p[1], prof)  # g, dg/dx0, dg/ds
         return _channels(prof[0], prof[1:], p[2:], noise)
 
     return model
@@ -469,14 +469,14 @@ def _lever_1d(x: np.ndarray, noise: np.ndarray):
     ``(x0, s, a_c, b_c)`` are ``(a_c ∂g/∂x0, a_c ∂g/∂s, g, 1) / σ_c``. ``p (8, k)`` the parameters,
     ``row (8, k)`` the centre's row of ``(JᵀJ)⁻¹``, ``y (3 W, k)`` the whitened windows and
     ``usable (3 W, k)`` their fitted pixels -> ``(k,)``."""
-    edges = _edges(x)
+    edges = pixel_edges(x)
     w_px = x.size
     inv_noise = (1.0 / np.asarray(noise, float))[:, None, None]  # (3, 1, 1)
 
     def lever(p, row, y, usable):
         k = p.shape[1]
         prof = np.empty((3, w_px, k))
-        _profile(edges, p[0], p[1], prof)  # g, ∂g/∂x0, ∂g/∂s
+        profile_terms(edges, p[0], p[1], prof)  # g, ∂g/∂x0, ∂g/∂s
         amp = p[2:5, None] * inv_noise  # (3, 1, k), whitened; the (3, k) factors first, then one pass each
         a = amp * (row[0] * prof[1] + row[1] * prof[2])
         a += (row[2:5, None] * inv_noise) * prof[0]
@@ -519,7 +519,7 @@ def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, n
     come from the sums ``Σ y f_i``, ``Σ y`` and ``Σ y²``. NaN normal equations where a channel's
     levels are not solvable (:func:`_levels`): no step is taken and the fit has no covariance.
     """
-    edges = _edges(x)
+    edges = pixel_edges(x)
     w_px = x.size
     sigma = np.tile(np.asarray(noise, float)[:, None], (2, 1))  # (6, 1): the amplitudes', then the backgrounds'
     low, high = bounds[0][2:8, None] / sigma, bounds[1][2:8, None] / sigma  # whitened
@@ -529,7 +529,7 @@ def _projection_1d(x: np.ndarray, noise: np.ndarray, bounds: tuple[np.ndarray, n
         # rows: the products f_i f_j (i >= j) of the bases f = (g, ∂g/∂x0, ∂g/∂s), then the bases
         prods = np.empty((9, w_px, k))
         basis = prods[6:]
-        _profile(edges, p[0], p[1], basis)
+        profile_terms(edges, p[0], p[1], basis)
         for q, (i, j) in enumerate(_PAIRS):
             np.multiply(basis[i], basis[j], out=prods[q])
         y3 = y.reshape(3, w_px, k)
@@ -602,13 +602,13 @@ def _levels(s_gg, s_g, s_w, s_gy, s_y):
 def _model_2d(xu: np.ndarray, xv: np.ndarray, noise: np.ndarray):
     """The separable colour spot model (pixel ``row · Wu + column``), whitened by each channel's
     noise: ``p (10, n)`` -> ``mu (3 Wv Wu, n)``, ``jac (10, 3 Wv Wu, n)``."""
-    edges_u, edges_v = _edges(xu), _edges(xv)
+    edges_u, edges_v = pixel_edges(xu), pixel_edges(xv)
 
     def model(p):
         n = p.shape[1]
         pu, pv = np.empty((3, xu.size, n)), np.empty((3, xv.size, n))
-        _profile(edges_u, p[0], p[2], pu)
-        _profile(edges_v, p[1], p[3], pv)
+        profile_terms(edges_u, p[0], p[2], pu)
+        profile_terms(edges_v, p[1], p[3], pv)
         g = (pv[0][:, None] * pu[0][None]).reshape(-1, n)
         dg = np.stack([pv[0][:, None] * pu[1][None], pv[1][:, None] * pu[0][None],  # d/du0, d/dv0
                        pv[0][:, None] * pu[2][None], pv[2][:, None] * pu[0][None]])  # d/dsu, d/dsv

@@ -76,11 +76,11 @@ def integrated_profile(x: np.ndarray, x0: np.ndarray, s: np.ndarray):
     """
     x0, s = np.broadcast_arrays(np.ravel(x0).astype(float), np.ravel(s).astype(float))
     out = np.empty((3, x.size, x0.size))
-    _profile(_edges(x), x0, s, out)
+    profile_terms(pixel_edges(x), x0, s, out)
     return out[0].T, out[1].T, out[2].T
 
 
-def _profile(edges: np.ndarray, x0: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
+def profile_terms(edges: np.ndarray, x0: np.ndarray, s: np.ndarray, out: np.ndarray) -> None:
     """:func:`integrated_profile` candidate-minor: ``edges (W + 1, 1)``, ``x0, s (n,)``; writes
     ``g, dg_dx0, dg_ds`` into ``out[0], out[1], out[2]``, each ``(W, n)``."""
     t = edges - x0
@@ -102,7 +102,7 @@ def _profile(edges: np.ndarray, x0: np.ndarray, s: np.ndarray, out: np.ndarray) 
 _EDGE_CACHE: dict[tuple[int, float, float], np.ndarray] = {}
 
 
-def _edges(x: np.ndarray) -> np.ndarray:
+def pixel_edges(x: np.ndarray) -> np.ndarray:
     """Pixel edges ``x − ½`` and ``x[-1] + ½`` of consecutive pixel centres, ``(W + 1, 1)``, cached."""
     key = (x.size, float(x[0]), float(x[-1]))
     edges = _EDGE_CACHE.get(key)
@@ -136,12 +136,12 @@ def model_1d(x: np.ndarray, p: np.ndarray):
 def minor_model_1d(x: np.ndarray):
     """:func:`model_1d` for :func:`fit_batch` with ``minor=True``: ``p (4, n)`` -> ``mu (W, n)``,
     ``jac (4, W, n)``."""
-    edges = _edges(x)
+    edges = pixel_edges(x)
 
     def model(p):
         a, x0, s, b = p
         jac = np.empty((4, x.size, a.size))
-        _profile(edges, x0, s, jac)
+        profile_terms(edges, x0, s, jac)
         jac[1:3] *= a
         jac[3] = 1.0
         mu = jac[0] * a
@@ -175,7 +175,7 @@ def model_2d(xu: np.ndarray, xv: np.ndarray, p: np.ndarray):
 def minor_model_2d(xu: np.ndarray, xv: np.ndarray):
     """:func:`model_2d` for :func:`fit_batch` with ``minor=True``: ``p (6, n)`` -> ``mu (Wv·Wu, n)``,
     ``jac (6, Wv·Wu, n)`` (pixel index ``row · Wu + column``)."""
-    edges_u, edges_v = _edges(xu), _edges(xv)
+    edges_u, edges_v = pixel_edges(xu), pixel_edges(xv)
     pick_v = [0, 0, 1, 0, 2]  # jac[k] = v-factor[k] × u-factor[k]: g, g, dg/dx0, g, dg/ds of v
     pick_u = [0, 1, 0, 2, 0]  # ... and g, A dg/dx0, A g, A dg/ds, A g of u (the first without A)
 
@@ -184,12 +184,12 @@ def minor_model_2d(xu: np.ndarray, xv: np.ndarray):
         n = a.size
         if edges_u is edges_v:  # one call for both axes: (3, W, 2n), u then v
             both = np.empty((3, xu.size, 2 * n))
-            _profile(edges_u, p[1:3].reshape(-1), p[3:5].reshape(-1), both)
+            profile_terms(edges_u, p[1:3].reshape(-1), p[3:5].reshape(-1), both)
             prof_u, prof_v = both[:, :, :n], both[:, :, n:]
         else:
             prof_u, prof_v = np.empty((3, xu.size, n)), np.empty((3, xv.size, n))
-            _profile(edges_u, p[1], p[3], prof_u)
-            _profile(edges_v, p[2], p[4], prof_v)
+            profile_terms(edges_u, p[1], p[3], prof_u)
+            profile_terms(edges_v, p[2], p[4], prof_v)
         factor_u = np.take(prof_u * a, pick_u, axis=0)  # (5, Wu, n)
         factor_u[0] = prof_u[0]
         jac = np.empty((6, xv.size, xu.size, n))
@@ -532,7 +532,7 @@ def centre_misfit(jac: np.ndarray, info_inv: np.ndarray, residuals: np.ndarray, 
     dof = np.maximum(dof, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         chi2 = np.where(pixel_var > 0, residuals**2 / pixel_var, 0.0).sum(axis=0)
-    misfit = _misfits(chi2, dof) | (clusters is not None)
+    misfit = misfits(chi2, dof) | (clusters is not None)
     factor = np.ones(dof.size)
     if misfit.any():
         a = np.einsum("nkj,jmn->kmn", info_inv[misfit][:, list(centre), :], jac[..., misfit])  # (K, M, m)
@@ -576,7 +576,7 @@ def _cluster_sums(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
     return sums.reshape(*values.shape[:-2], n, n_labels)
 
 
-def _misfits(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
+def misfits(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """Whether each window's ``chi2 (n,)`` exceeds its ``MISFIT_LEVEL`` quantile for ``dof (n,)``
     (at least 1)."""
     return chi2 / dof > _misfit_limit(dof)
@@ -677,7 +677,7 @@ def parameter_covariance(res: FitResult, noise_sigma: np.ndarray, centre: tuple[
         cov = base_var[:, None, None] * info
         # white noise: a window's χ² is its cost over σ², and only the misfits need their residuals
         # (centre_misfit tests them again, on these)
-        maybe = usable[_misfits(res.chi2_unit[usable] / base_var[usable], np.maximum(res.dof[usable], 1))]
+        maybe = usable[misfits(res.chi2_unit[usable] / base_var[usable], np.maximum(res.dof[usable], 1))]
         if maybe.size:
             r, jac = res.minor(maybe)
             factor[maybe] = centre_misfit(jac, info[maybe], r, np.where(jac[-1] != 0, base_var[maybe], 0.0),
