@@ -41,10 +41,10 @@ def write_plots(result, folder: str | Path) -> list[Path]:
         ax.hist2d(uv[:, 0], uv[:, 1], bins=(16, 12), range=[[0, cam.width], [0, cam.height]], cmap="Greys")
         ax.set(xlim=(0, cam.width), ylim=(cam.height, 0), aspect="equal", title="coverage (detections)")
         ax = axes[1, 1]
-        from scanrig.calibration.uncertainty import MAP_SAMPLES, _image_grid
+        from scanrig.calibration.uncertainty import MAP_SAMPLES, image_grid
 
         sigma = result.projection_sigma_px[cam.name].reshape(MAP_SAMPLES[1], MAP_SAMPLES[0])
-        q = _image_grid(cam)
+        q = image_grid(cam)
         im = ax.imshow(sigma, extent=(q[:, 0].min(), q[:, 0].max(), q[:, 1].max(), q[:, 1].min()), cmap="magma")
         fig.colorbar(im, ax=ax, label="px")
         ax.set(title=f"projection sigma at {result.working_distance_m[cam.name]:.2f} m", aspect="equal")

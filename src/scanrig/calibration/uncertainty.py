@@ -188,7 +188,7 @@ def _parameter_names(result: BundleResult) -> list[str]:
     return names
 
 
-def _image_grid(cam: Camera, samples=MAP_SAMPLES) -> np.ndarray:
+def image_grid(cam: Camera, samples=MAP_SAMPLES) -> np.ndarray:
     """(n, 2) pixels on a regular grid spanning the whole image."""
     u = np.linspace(0, cam.width - 1, samples[0])
     v = np.linspace(0, cam.height - 1, samples[1])
@@ -199,7 +199,7 @@ def _image_grid(cam: Camera, samples=MAP_SAMPLES) -> np.ndarray:
 def grid_points_cam(cam: Camera, depth_m: float, samples=MAP_SAMPLES):
     """Pixels of the image grid and their points at ``depth_m`` in the camera frame (NaN where the
     distortion cannot be inverted)."""
-    q = _image_grid(cam, samples)
+    q = image_grid(cam, samples)
     xy, ok = cam.unproject(q)
     p = np.column_stack([xy, np.ones(len(xy))]) * depth_m
     p[~ok] = np.nan
