@@ -148,11 +148,8 @@ def _fit_colour(li, cand: Candidates, half: int) -> dict[str, np.ndarray]:
     run = li.saturated[np.clip(cand.v[:, None] + np.arange(-half, half + 1), 0, li.saturated.shape[0] - 1),
                        cand.u[:, None]].sum(axis=1)
     fit = fit_clipped_spots(li.colour, cand.u, cand.v, half + int(run.max()) // 2, MAX_SHIFT_PX)
-    cov = fit.pop("cov")
-    return {"u": fit["u"], "v": fit["v"],
-            "sigma_px": np.sqrt(np.abs(_larger_eigenvalue(cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]))),
-            "peak": fit["peak"], "width_px": fit["width_px"], "snr": fit["snr"], "cov_uu": cov[:, 0, 0],
-            "cov_uv": cov[:, 0, 1], "cov_vv": cov[:, 1, 1], "saturated": np.ones(fit["u"].size, bool)}
+    return _spot_columns(fit["u"], fit["v"], fit["cov"], fit["peak"], fit["width_px"], fit["snr"],
+                         np.ones(fit["u"].size, bool))
 
 
 def _fit_signal(li, cand: Candidates, half: int, max_width_px: float) -> dict[str, np.ndarray]:
@@ -184,13 +181,35 @@ def _fit_signal(li, cand: Candidates, half: int, max_width_px: float) -> dict[st
           & (np.abs(p[:, 2]) <= MAX_SHIFT_PX) & (res.dof > 0))
     core = (np.zeros(n, bool) if saturated is None
             else saturated[half - 1 : half + 2, half - 1 : half + 2].any(axis=(0, 1)))
-    out = {
-        "u": cand.u + p[:, 1], "v": cand.v + p[:, 2],
-        "sigma_px": np.sqrt(np.abs(_larger_eigenvalue(cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]))),
-        "peak": p[:, 0], "width_px": np.sqrt(p[:, 3] * p[:, 4]), "snr": p[:, 0] / noise,
-        "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1], "cov_vv": cov[:, 1, 1], "saturated": core,
-    }
+    out = _spot_columns(cand.u + p[:, 1], cand.v + p[:, 2], cov, p[:, 0], np.sqrt(p[:, 3] * p[:, 4]),
+                        p[:, 0] / noise, core)
     return {k: a[ok] for k, a in out.items()}
+
+
+def _spot_columns(u, v, cov, peak, width_px, snr, saturated) -> dict[str, np.ndarray]:
+    """The columns of :func:`_fit_spots` of ``n`` fitted spots, from either fit.
+
+    Parameters
+    ----------
+    u, v : (n,) float arrays
+        Fitted centres, signal pixels.
+    cov : (n, 2, 2) float array
+        Covariance of each centre ``(u, v)``, px².
+    peak, width_px, snr : (n,) float arrays
+        Fitted peak (DN), Gaussian σ (px) and peak over noise.
+    saturated : (n,) bool array
+        Whether the spot's core is clipped.
+
+    Returns
+    -------
+    dict of (n,) arrays
+        ``u, v, sigma_px, peak, width_px, snr, cov_uu, cov_uv, cov_vv, saturated``; ``sigma_px`` is
+        the square root of the covariance's larger eigenvalue.
+    """
+    cov_uu, cov_uv, cov_vv = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    return {"u": u, "v": v, "sigma_px": np.sqrt(np.abs(_larger_eigenvalue(cov_uu, cov_uv, cov_vv))),
+            "peak": peak, "width_px": width_px, "snr": snr, "cov_uu": cov_uu, "cov_uv": cov_uv,
+            "cov_vv": cov_vv, "saturated": saturated}
 
 
 def _larger_eigenvalue(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
