@@ -75,18 +75,6 @@ def pad_coefficients(coeffs: np.ndarray) -> np.ndarray:
     return full
 
 
-def _radial_terms(r2: np.ndarray, d: np.ndarray):
-    """Numerator, denominator and their derivatives with respect to ``r2``."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = d[:8]
-    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    dnum = k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)
-    if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
-        return num, np.ones_like(r2), dnum, 0.0
-    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    dden = k4 + r2 * (2.0 * k5 + 3.0 * r2 * k6)
-    return num, den, dnum, dden
-
-
 def distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Apply distortion to normalised coordinates.
 
@@ -108,16 +96,38 @@ def distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 def distort_components(x: np.ndarray, y: np.ndarray, d: np.ndarray):
     """:func:`distort` on separate coordinate arrays: returns ``(xd, yd)``, same shape as ``x``."""
-    p1, p2 = d[2], d[3]
-    s1, s2, s3, s4 = d[8:12]
     r2 = x * x + y * y
     k4, k5, k6 = d[5:8]
     radial = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
     if k4 or k5 or k6:
         radial /= 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    return _distorted_from_radial(x, y, r2, radial, d)
+
+
+def _distorted_from_radial(x: np.ndarray, y: np.ndarray, r2: np.ndarray, radial: np.ndarray, d: np.ndarray):
+    """Distorted coordinates from the radial factor: the tangential and thin-prism terms added.
+
+    Parameters
+    ----------
+    x, y : ndarray, any shape
+        Undistorted normalised coordinates.
+    r2 : ndarray, same shape
+        ``x² + y²``.
+    radial : ndarray, same shape
+        The radial factor (numerator over denominator of the module formula) at ``r2``.
+    d : ndarray of shape (12,)
+        Full coefficient vector.
+
+    Returns
+    -------
+    xd, yd : ndarray, same shape as ``x``
+        Distorted normalised coordinates.
+    """
+    p1, p2 = d[2], d[3]
     xy2 = 2.0 * x * y
     xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    s1, s2, s3, s4 = d[8:12]
     if s1 or s2 or s3 or s4:
         xd += r2 * (s1 + s2 * r2)
         yd += r2 * (s3 + s4 * r2)
@@ -147,9 +157,7 @@ def _distort_and_jacobian_xy(x: np.ndarray, y: np.ndarray, d: np.ndarray):
         dradial = (dradial * den - radial * dden) / (den * den)
         radial = radial / den
     two_dradial = 2.0 * dradial
-    xy2 = 2.0 * x * y
-    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    xd, yd = _distorted_from_radial(x, y, r2, radial, d)
     j00 = radial + two_dradial * x * x + 2.0 * (p1 * y + 3.0 * p2 * x)
     j01 = two_dradial * x * y + 2.0 * (p1 * x + p2 * y)
     j11 = radial + two_dradial * y * y + 2.0 * (3.0 * p1 * y + p2 * x)
@@ -158,8 +166,6 @@ def _distort_and_jacobian_xy(x: np.ndarray, y: np.ndarray, d: np.ndarray):
     if s1 or s2 or s3 or s4:
         ds_x = 2.0 * (s1 + 2.0 * s2 * r2)  # d(s1 r2 + s2 r4)/d r2, times d r2/d x / x
         ds_y = 2.0 * (s3 + 2.0 * s4 * r2)
-        xd = xd + r2 * (s1 + s2 * r2)
-        yd = yd + r2 * (s3 + s4 * r2)
         j00 = j00 + ds_x * x
         j01 = j01 + ds_x * y
         j10 = j10 + ds_y * x
@@ -270,15 +276,25 @@ def undistort_components(xd: np.ndarray, yd: np.ndarray, d: np.ndarray, scale=No
         Contiguous undistorted normalised coordinates, NaN where not converged.
     converged : ndarray of shape (N,), bool
     """
-    n = xd.shape[0]
-    if not np.any(d):  # a pinhole camera: nothing to invert
+    if np.any(d):
+        x, y, converged = _solve_undistortion(xd, yd, d, scale)
+    else:  # a pinhole camera: nothing to invert
         x, y = _targets_of(xd, yd, scale)
         converged = np.isfinite(x)
         converged &= np.isfinite(y)
-        if not converged.all():
-            x[~converged] = np.nan
-            y[~converged] = np.nan
-        return x, y, converged
+    if not converged.all():
+        x[~converged] = np.nan
+        y[~converged] = np.nan
+    return x, y, converged
+
+
+def _solve_undistortion(xd: np.ndarray, yd: np.ndarray, d: np.ndarray, scale):
+    """The solves of :func:`undistort_components` for a lens that distorts (``d`` not all zero).
+
+    Takes and returns what :func:`undistort_components` does, except that ``x, y`` keep the
+    last iterate where ``converged`` is False.
+    """
+    n = xd.shape[0]
     work = _NewtonWork(d, min(max(n, 1), UNDISTORT_BLOCK))
     x, y = np.empty(n), np.empty(n)
     res2 = np.empty(n)
@@ -334,9 +350,6 @@ def undistort_components(xd: np.ndarray, yd: np.ndarray, d: np.ndarray, scale=No
             x[hard], y[hard], ok_h = _continuation(work, *_targets_of(xd[hard], yd[hard], scale))
             converged[hard] = ok_h
             _fold_check(x, y, converged, d, hard)
-    if not converged.all():
-        x[~converged] = np.nan
-        y[~converged] = np.nan
     return x, y, converged
 
 
