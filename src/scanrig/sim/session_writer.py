@@ -109,14 +109,9 @@ def simulate_session(
         default_target(target_kind)  # an unknown target fails now, not after rendering the scan
     if light_plane_shots and target_kind == "cube":
         raise InputError("light-plane shots need a planar target: use target_kind 'chessboard' or 'charuco'")
-    scene_source = None
-    if not isinstance(scene, Scene):
-        scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
-        scene = load_scene(scene)
+    scene, scene_source = scene_and_source(scene)
     rig = rig or default_rig(n_cameras, scene.center_m, scene.rig)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: output session folder is an existing file")
+    out = session_folder(out)
     progress = progress or (lambda stage, done, total: None)
     provenance = dict(provenance or {})
     bank_rngs, frame_rngs, dark_rng, calib_rng, survey_rng, light_rng = _spawn(rng, len(rig), n_frames)
@@ -145,13 +140,10 @@ def simulate_session(
 
     _write_truth(out, scene, rig, poses, stems, truth_rows, scene_source, provenance)
     write_survey(out, scene, rig, survey_rng)
-    settings = {"cameras": rig.names, "laser_mode": mode, "laser_color": "red",
-                "created_by": "scanrig simulate", **{k: v for k, v in provenance.items() if k == "seed"}}
     if with_calibration:
         from scanrig.sim.calibration_shots import write_calibration
 
         write_calibration(out, scene, rig, n_shots, target_kind, calib_rng, workers, progress)
-        settings["target"] = "target.toml"
     if light_plane_shots:
         from scanrig.sim.calibration_shots import default_target
         from scanrig.sim.light_plane_shots import write_light_plane_shots
@@ -161,11 +153,70 @@ def simulate_session(
         save_target(target, out / "target.toml")
         write_light_plane_shots(out, scene, rig, target, light_plane_shots, light_rng, workers=workers,
                                 progress=progress)
-        settings["target"] = "target.toml"
+    settings = {"cameras": rig.names, "laser_mode": mode, "laser_color": "red", "created_by": "scanrig simulate"}
+    write_session_toml(out, "simulated session", settings, provenance,
+                       with_target=bool(with_calibration or light_plane_shots))
+    return out
+
+
+def scene_and_source(scene: Scene | str) -> tuple[Scene, Path | None]:
+    """The scene to render and the file it was read from.
+
+    Parameters
+    ----------
+    scene : Scene or str
+        A scene, a built-in scene name or a scene file path (ending in ``.toml``).
+
+    Returns
+    -------
+    scene : Scene
+    source : Path or None
+        The scene file, copied to ``truth/scene.toml`` (:func:`write_truth_tables`); None for a
+        ``Scene`` given as such.
+    """
+    if isinstance(scene, Scene):
+        return scene, None
+    source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
+    return load_scene(scene), source
+
+
+def session_folder(out: str | Path) -> Path:
+    """``out`` as the folder of a session to write (it may exist, as a folder).
+
+    Raises
+    ------
+    InputError
+        Where ``out`` is an existing file.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: output session folder is an existing file")
+    return out
+
+
+def write_session_toml(out: Path, what: str, settings: dict, provenance: dict, with_target: bool) -> None:
+    """Write ``out/session.toml`` of a simulated session.
+
+    Parameters
+    ----------
+    out : Path
+        Session folder.
+    what : str
+        What was simulated, for the file's first comment line.
+    settings : dict
+        ``cameras``, ``laser_mode``, ``laser_color`` and ``created_by``; the ``seed`` of
+        ``provenance`` (if any) follows, then ``target = "target.toml"`` when ``with_target``.
+    provenance : dict
+        The simulation's provenance (only its ``seed`` is written here).
+    with_target : bool
+        Whether the session holds ``target.toml``.
+    """
     import tomli_w
 
-    write_text_atomic(out / "session.toml", "# simulated session; ground truth in truth/\n" + tomli_w.dumps(settings))
-    return out
+    settings = {**settings, **{k: v for k, v in provenance.items() if k == "seed"}}
+    if with_target:
+        settings["target"] = "target.toml"
+    write_text_atomic(out / "session.toml", f"# {what}; ground truth in truth/\n" + tomli_w.dumps(settings))
 
 
 def _spawn(rng: np.random.Generator, n_cams: int, n_frames: int):
@@ -193,6 +244,27 @@ def _write_truth(out, scene, rig, poses, stems, truth_rows, scene_source, proven
     save_rig(rig, truth / "rig.toml", metadata={"source": "scanrig simulate (true cameras)", **provenance},
              comments=["ground truth of a simulated session: the cameras that rendered the images"])
     write_truth_meshes(truth, scene)
+    write_truth_tables(truth, stems, truth_rows, poses, scene_source)
+
+
+def write_truth_tables(truth: Path, stems: list[str], truth_rows: list, poses: list[BeamPose],
+                       scene_source: Path | None) -> None:
+    """Write ``truth/frames.csv`` (:func:`frames_csv`), ``truth/laser.csv`` (:func:`laser_csv`)
+    and, where the scene came from a file, its copy ``truth/scene.toml``.
+
+    Parameters
+    ----------
+    truth : Path
+        The session's ``truth`` folder.
+    stems : list of str
+        Frame stems, one per frame.
+    truth_rows : list
+        ``(kinds, points)`` of each frame: true hit kinds and points (world metres).
+    poses : list of BeamPose
+        The laser of each frame (world frame, metres).
+    scene_source : Path or None
+        The scene file (:func:`scene_and_source`).
+    """
     write_text_atomic(truth / "frames.csv", frames_csv(stems, truth_rows))
     write_text_atomic(truth / "laser.csv", laser_csv(poses, stems))
     if scene_source is not None:

@@ -25,12 +25,10 @@ import numpy as np
 
 from scanrig.errors import EstimationError, InputError
 from scanrig.geometry import Camera, Rig, RigidTransform
-from scanrig.io.atomic import write_bytes_atomic, write_text_atomic
 from scanrig.io.object_poses import object_poses_path, write_object_poses
 from scanrig.io.rig_file import save_rig
 from scanrig.io.session import write_image
 from scanrig.sim.laser import BeamPose, trace_laser
-from scanrig.sim.library import load_scene, scene_path
 from scanrig.sim.light_plane_shots import write_true_light_plane
 from scanrig.sim.parallel import run_indexed
 from scanrig.sim.pixel_rays import PixelRayTable
@@ -38,7 +36,14 @@ from scanrig.sim.render import CameraView
 from scanrig.sim.rigs import default_rig
 from scanrig.sim.scan_setup import LASER_COLOR
 from scanrig.sim.scene import Scene
-from scanrig.sim.session_writer import Progress, frames_csv, laser_csv, write_truth_meshes
+from scanrig.sim.session_writer import (
+    Progress,
+    scene_and_source,
+    session_folder,
+    write_session_toml,
+    write_truth_meshes,
+    write_truth_tables,
+)
 
 #: Azimuth between the camera and the laser around the turntable axis, degrees (Ciclop: 30).
 TRIANGULATION_DEG = 30.0
@@ -261,16 +266,11 @@ def simulate_turntable_session(
     if with_calibration and target_kind != "cube":
         raise InputError(f"a turntable session is calibrated with the cube standing on the turntable for shot 000 "
                          f"(the world frame); target kind {target_kind!r} cannot stand there in view, use 'cube'")
-    scene_source = None
-    if not isinstance(scene, Scene):
-        scene_source = Path(scene) if str(scene).endswith(".toml") else scene_path(str(scene))
-        scene = load_scene(scene)
+    scene, scene_source = scene_and_source(scene)
     if scene.colour is not None:
         raise InputError(f"scene {scene.name!r} has a colour camera; turntable sessions render grey cameras only")
     rig = turntable_rig(scene, triangulation_deg)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: output session folder is an existing file")
+    out = session_folder(out)
     progress = progress or (lambda stage, done, total: None)
     provenance = dict(provenance or {})
     frame_rngs = rng.spawn(n_frames)
@@ -307,18 +307,9 @@ def simulate_turntable_session(
              comments=["ground truth of a simulated turntable session: the camera that rendered the images"])
     write_true_light_plane(truth / "light_plane.toml", rig.laser, name, "ground truth of a simulated turntable session")
     write_truth_meshes(truth, scene, "object frame (the world frame at turntable angle 0)")
-    write_text_atomic(truth / "frames.csv", frames_csv(stems, truth_rows))
-    write_text_atomic(truth / "laser.csv", laser_csv([rig.laser] * n_frames, stems))
-    if scene_source is not None:
-        write_bytes_atomic(truth / "scene.toml", Path(scene_source).read_bytes())
+    write_truth_tables(truth, stems, truth_rows, [rig.laser] * n_frames, scene_source)
 
     settings = {"cameras": [name], "laser_mode": "stripe", "laser_color": LASER_COLOR,
-                "created_by": "scanrig simulate --rig turntable",
-                **{k: v for k, v in provenance.items() if k == "seed"}}
-    if with_calibration:
-        settings["target"] = "target.toml"
-    import tomli_w
-
-    write_text_atomic(out / "session.toml", "# simulated turntable session; ground truth in truth/\n"
-                      + tomli_w.dumps(settings))
+                "created_by": "scanrig simulate --rig turntable"}
+    write_session_toml(out, "simulated turntable session", settings, provenance, with_target=bool(with_calibration))
     return out
