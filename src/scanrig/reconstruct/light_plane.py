@@ -237,19 +237,14 @@ def with_block_uncertainty(plane: LightPlane, p_world: np.ndarray, weights: np.n
     :meth:`LightPlane.offset_sigma` assumes independent errors: ``N`` points make the offset
     ``sqrt(N)`` times better known than one. Points of one stripe share smooth errors (the
     calibration's, which bend a straight stripe), so the inliers are cut into ``n_blocks``
-    contiguous blocks along the plane's long axis, the plane is refitted without each block, and
-    the jackknife variances of its offset (at the centroid) and of its tilts replace the
-    independent-error ones where they are larger. The result is expressed in the same form — an
-    effective number of points and effective spreads — so ``offset_sigma`` keeps its meaning.
+    contiguous blocks along the plane's long axis, the blocks of
+    :func:`with_jackknife_uncertainty`.
 
     Parameters
     ----------
-    plane : LightPlane
-        Fitted to ``p_world`` with ``weights``.
-    p_world : ndarray of shape (N, 3)
-        Its inliers, metres.
-    weights : ndarray of shape (N,)
-        Their weights in the fit.
+    plane, p_world, weights
+        As for :func:`with_jackknife_uncertainty`: the plane, its inliers ``(N, 3)`` (metres) and
+        their weights ``(N,)``.
     n_blocks : int
         Jackknife blocks (at least 3 points each, else the plane is returned unchanged).
     """
