@@ -17,7 +17,9 @@
   faces seen head-on (0.04 px RMS on rendered cube sessions) but err by 0.3-0.5 px RMS on faces
   seen at 65-90 degrees, where its window reaches markers and neighbouring corners; refined,
   0.01 px and 0.015-0.05 px. A corner whose fit fails (mostly on faces seen nearly edge-on,
-  where OpenCV's corner can be pixels off) is left out.
+  where OpenCV's corner can be pixels off) is left out. An image in which no board is found is
+  searched again with its grey levels inverted: boards printed white on black (caliscope's
+  default, "inverted") have the same corners, and OpenCV finds their markers only so.
 - Circle grids: ``cv2.findCirclesGrid`` (symmetric or asymmetric).
 
 Every detection has weight 1 (the common pixel noise is estimated by the bundle adjustment).
@@ -159,6 +161,17 @@ def _sample(grey: np.ndarray, uv: np.ndarray) -> float:
 
 
 def _detect_charuco(grey: np.ndarray, boards, refine: bool = True) -> Detection:
+    """ChArUco corners of every board, from the image as it is or, when that finds none, inverted."""
+    for image, print_kind in ((grey, ""), (255 - grey, " (inverted print)")):
+        found = _detect_charuco_print(image, boards, refine)
+        if len(found.point_ids):
+            found.method += print_kind
+            return found
+    return found
+
+
+def _detect_charuco_print(grey: np.ndarray, boards, refine: bool) -> Detection:
+    """ChArUco corners of every board in a grey image of a black-on-white print."""
     import cv2
 
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, boards[0].dictionary))
