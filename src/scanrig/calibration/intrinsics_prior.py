@@ -169,7 +169,7 @@ def with_known_intrinsics(cameras: list[Camera], known: dict) -> list[Camera]:
     return out
 
 
-def undetermined_intrinsics(camera: str, poorly_determined: list) -> str | None:
+def undetermined_intrinsics(camera: str, poorly_determined: list, advice: str | None = None) -> str | None:
     """The one-line warning for a camera whose views leave its focal length or principal point open,
     or None.
 
@@ -180,6 +180,8 @@ def undetermined_intrinsics(camera: str, poorly_determined: list) -> str | None:
         The parameters whose 1 sigma moves some pixel of the image by more than
         :data:`scanrig.calibration.uncertainty.POORLY_DETERMINED_PX`
         (:attr:`scanrig.calibration.uncertainty.Uncertainty.poorly_determined`).
+    advice : str, optional
+        What to do, ending the line; default: calibrate the intrinsics separately.
 
     Returns
     -------
@@ -191,8 +193,8 @@ def undetermined_intrinsics(camera: str, poorly_determined: list) -> str | None:
     loose = [f"{p} ±{std[p]:.2g} px" for p in PINHOLE_PARAMS if p in std]
     if not loose:
         return None
-    return (f"{camera}: intrinsics not determined by these views ({', '.join(loose)}): calibrate them "
-            f"separately ({INTRINSIC_STAGE}/{camera}/ images, or --intrinsics FILE)")
+    advice = advice or f"calibrate them separately ({INTRINSIC_STAGE}/{camera}/ images, or --intrinsics FILE)"
+    return f"{camera}: intrinsics not determined by these views ({', '.join(loose)}): {advice}"
 
 
 def prior_pull_warning(camera: Camera, known: KnownIntrinsics) -> str | None:

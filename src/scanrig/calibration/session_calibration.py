@@ -17,7 +17,7 @@ import numpy as np
 
 from scanrig.calibration.corners_csv import read_corners_csv, write_corners_csv
 from scanrig.calibration.intrinsics_prior import (INTRINSIC_STAGE, INTRINSIC_TARGET, KnownIntrinsics, check_size,
-                                                  read_intrinsics_file)
+                                                  read_intrinsics_file, undetermined_intrinsics)
 from scanrig.calibration.observations import Observations
 from scanrig.calibration.pipeline import REPORT_DIR, CalibrationResult, calibrate, detect_session
 from scanrig.calibration.summary import format_summary, write_outliers_csv, write_summary_json
@@ -73,17 +73,18 @@ def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | P
     target = load_target(session.target_path)
     cameras = session.camera_names("calibration")
     not_found: list = []
-    sizes = {}
+    sizes, stems = {}, {}
     for cam in cameras:
         paths = session.image_paths("calibration", cam)
         if not paths:
             raise FileFormatError(session.root / "calibration" / cam, "no calibration images (needed for the size)")
         img = read_image(next(iter(paths.values())))
-        sizes[cam] = (img.shape[1], img.shape[0])
+        sizes[cam], stems[cam] = (img.shape[1], img.shape[0]), paths
     known = session_intrinsics(session, sizes, model, intrinsics, refine_intrinsics, progress_factory)
     if corners_csv is not None:
         obs = read_corners_csv(corners_csv, sizes, cameras)
     else:
+        check_shared_stems(session.root / "calibration", stems)
         n_images = sum(len(session.image_paths("calibration", c)) for c in cameras)
         advance = progress_factory(n_images) if progress_factory else None
         obs, not_found = detect_session(session, target, cameras, advance)
@@ -91,6 +92,38 @@ def solve_session(root: str | Path, model: str = "opencv5", corners_csv: str | P
                        refine_intrinsics=refine_intrinsics)
     result.not_found = not_found
     return result, obs
+
+
+def check_shared_stems(folder: Path, paths: dict) -> None:
+    """Refuse cameras none of whose image stems another camera has: they can never join the rig.
+
+    Parameters
+    ----------
+    folder : Path
+        The ``calibration`` folder, for the message.
+    paths : dict
+        ``camera -> {stem: path}`` of every camera's images, in the rig's order.
+
+    Raises
+    ------
+    FileFormatError
+        With two or more cameras, naming those cameras (all but the first when no two cameras share
+        a stem) and an image of one of them and of another camera (typically ``right01.jpg``
+        beside ``left01.jpg``: the stems must be equal).
+    """
+    if len(paths) < 2:
+        return
+    stems = {cam: set(p) for cam, p in paths.items()}
+    alone = [cam for cam in paths if not any(stems[cam] & stems[other] for other in paths if other != cam)]
+    if not alone:
+        return
+    joined = [cam for cam in paths if cam not in alone] or alone[:1]
+    alone = [cam for cam in alone if cam not in joined]
+    cam, other = alone[0], joined[0]
+    raise FileFormatError(folder, f"camera graph is disconnected: cameras {alone} share no shot with cameras "
+                                  f"{joined}, not one image stem ({next(iter(paths[cam].values())).name} in {cam}, "
+                                  f"{next(iter(paths[other].values())).name} in {other}): the same stem in every "
+                                  f"camera folder is the same instant, e.g. {cam}/000.png and {other}/000.png")
 
 
 def write_session_outputs(root: str | Path, result: CalibrationResult, obs: Observations, plots: bool = True,
@@ -195,9 +228,20 @@ def calibrate_intrinsic_folders(session, cameras: list[str], model: str, image_s
         detail = (f"{n_views} of {n_views + len(not_found)} images with the target, "
                   f"RMS {result.bundle.rms_px():.3f} px")
         known = KnownIntrinsics(result.rig[name], result.uncertainty.params_std[name], folder, detail,
-                                tuple(f"{folder} (calibrated alone): {w}" for w in result.warnings))
+                                tuple(f"{folder} (calibrated alone): {w}" for w in _own_warnings(result, name, folder)))
         out[name] = check_size(known, image_sizes[name])
     return out
+
+
+def _own_warnings(result: CalibrationResult, name: str, folder: str) -> list[str]:
+    """The warnings of a camera calibrated alone from ``folder``; that its intrinsics are not
+    determined says to add views there (not to calibrate them separately, which this is)."""
+    poorly = result.uncertainty.poorly_determined[name]
+    generic = undetermined_intrinsics(name, poorly)
+    own = undetermined_intrinsics(name, poorly, f"add views to {folder}/ (the board filling the image, tilted "
+                                                f"differently each time); the rig holds them fixed as they are "
+                                                f"(--refine-intrinsics: only to these sigmas)")
+    return [own if w == generic else w for w in result.warnings]
 
 
 def session_intrinsics(session, image_sizes: dict, model: str, path: str | Path | None = None,

@@ -113,6 +113,7 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
     import numpy as np
 
     from scanrig.calibration.pipeline import locate_target, sample_states, shot_index
+    from scanrig.errors import FileFormatError, InputError
     from scanrig.io.session import images_by_stem, read_image
     from scanrig.reconstruct.light_plane_session import LightPlanePose, calibrate_light_plane_images
 
@@ -137,7 +138,13 @@ def _light_planes(session: Path, result, images: dict, color: str, seed: int) ->
         c = result.rig.names.index(cam_name)
         samples = [(state.cameras[c], {stem: state.world_from_target[i] for stem, i in solved.items()})
                    for state in states]
-        fit, no_stripe = calibrate_light_plane_images(camera, result.target, poses, color, rng, samples)
+        try:
+            fit, no_stripe = calibrate_light_plane_images(camera, result.target, poses, color, rng, samples)
+        except InputError as exc:
+            if not skipped or isinstance(exc, FileFormatError):
+                raise
+            # the images left out here may be why too few poses remain: name them in the same line
+            raise InputError("; ".join([str(exc), *skipped])) from None
         out.append((cam_name, fit, skipped + no_stripe))
     return out
 
