@@ -81,11 +81,14 @@ def test_light_plane_bad_input(session, tmp_path, capsys):
     shutil.copy(folder / "lp00.png", folder / "lp00.jpg")
     _fails(root, capsys, [], f"{folder / 'lp00.png'}: two images share the stem 'lp00' (also lp00.jpg)")
     (folder / "lp00.jpg").unlink()
-    # one pose only
-    for path in sorted(folder.iterdir())[1:]:
+    # one pose with the stripe, one without (its laser-off image in place of the laser-on one)
+    for path in sorted(folder.iterdir())[2:]:
         path.unlink()
+    shutil.copy(root / "calibration" / "cam0" / "lp01.png", folder / "lp01.png")
     _fails(root, capsys, [], f"{folder}: the stripe on the target was found in 1 usable pose(s); at least 2 are "
-                             f"needed (6 or more at different distances and tilts)")
+                             f"needed (6 or more at different distances and tilts); {folder / 'lp01.png'}: no laser "
+                             f"stripe on the target (0 points), skipped")
+    (folder / "lp01.png").unlink()
     # the same pose three times (no laser-off twins: each located in its own image)
     for stem in ("x1", "x2"):
         shutil.copy(folder / "lp00.png", folder / f"{stem}.png")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from scanrig.cli.main import main
 from tests.data_paths import real_data
 
@@ -39,6 +41,24 @@ def test_too_few_light_plane_poses_names_the_images_left_out_and_writes_nothing(
     assert len(err) == 1
     assert "found in 1 usable pose(s); at least 2 are needed" in err[0]
     assert f"{root / 'light_plane' / 'cam0' / '101.png'}: the target was not found, skipped" in err[0]
+    # pattern.png, the board's own exposure, is no laser-off frame for the dim laser shot
+    assert (f"{root / 'calibration' / 'cam0' / '100.png'}: brighter than its laser-on image 100.png (median 129 "
+            f"against 0 DN), another exposure: used for the target's pose only, not subtracted") in err[0]
+    assert sorted(p.name for p in root.iterdir()) == before
+
+
+@pytest.mark.parametrize("color", ["green", "blue"])
+def test_a_wrong_laser_colour_is_named_though_it_finds_centres_on_the_board(tmp_path, capsys, color):
+    """The red laser's board: green and blue still find a centre on hundreds of scan lines (noise and
+    print), but far less light than red."""
+    root = ciclop_session(tmp_path)
+    before = sorted(p.name for p in root.iterdir())
+    assert main(["calibrate", str(root), "--light-plane", "--color", color, "--no-cross-validate", "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith(f"error: {root / 'light_plane' / 'cam0'}: 100.png shows little {color} laser light on "
+                             f"the target; the images show a red stripe: use --color red (or laser_color = 'red' in "
+                             f"session.toml)")
     assert sorted(p.name for p in root.iterdir()) == before
 
 

@@ -108,6 +108,21 @@ def test_bad_input():
         fit_light_plane([np.zeros((5, 3))] * 6, rng, names=["a"])
 
 
+def test_a_plane_that_only_one_pose_supports_is_refused():
+    """Pose a's stripe on the plane x = 0; pose b's on a skew line 20 mm off it (a wrong target
+    pose), with 30 stray points on the plane: no plane carries most points of two poses."""
+    rng = np.random.default_rng(7)
+    s = np.linspace(-0.05, 0.05, 200)[:, None]
+    line_a = np.array([0.0, 0.0, 0.45]) + s * [0.0, 1.0, 0.2]
+    line_b = np.array([0.02, 0.0, 0.40]) + s * [0.3, 0.2, 1.0]
+    stray = np.column_stack([np.zeros(30), rng.uniform(-0.05, 0.05, 30), rng.uniform(0.3, 0.5, 30)])
+    points = [line_a + rng.normal(0, 2e-5, line_a.shape), np.vstack([line_b, stray])]
+    with pytest.raises(InputError, match=r"^the stripe points of fewer than 2 poses lie on one plane \(pose a: \d+ of "
+                                         r"200, pose b: \d+ of 230 points on it\): a wrong target pose, or another "
+                                         r"light on the target\? The poses must show one laser's stripe$"):
+        fit_light_plane(points, rng, names=["a", "b"])
+
+
 def test_file_round_trip_with_sigmas_and_old_files(tmp_path):
     fit = _fit(7)
     path = tmp_path / "light_plane.toml"

@@ -151,8 +151,8 @@ def fit_light_plane(points_by_pose, rng: np.random.Generator, names=None,
     Raises
     ------
     InputError
-        Fewer than 2 poses with stripe points, or points of all poses along one line (the
-        target in one plane at every pose).
+        Fewer than 2 poses with stripe points, points of all poses along one line (the target in
+        one plane at every pose), or fewer than 2 poses with most of their points on the plane.
     """
     names = [str(k) for k in range(len(points_by_pose))] if names is None else [str(n) for n in names]
     if len(names) != len(points_by_pose):
@@ -169,6 +169,9 @@ def fit_light_plane(points_by_pose, rng: np.random.Generator, names=None,
     plane, on_plane, scale = _gated_refits(p[on_line], plane, lambda m, x: np.abs(m.distance(x)), fit_plane)
     inliers = np.zeros(len(p), bool)
     inliers[np.flatnonzero(on_line)[on_plane]] = True
+    # (the jackknife below changes the plane's sigmas, not the plane: these residuals stay)
+    residuals = _pose_residuals(plane, p, pose, inliers, names)
+    _check_poses_agree(residuals)
     rel = p[inliers] - p[inliers].mean(axis=0)
     along = np.linalg.eigh(rel.T @ rel)[1][:, -1]
     off_line_m = np.linalg.norm(rel - np.outer(rel @ along, along), axis=1)
@@ -179,7 +182,6 @@ def fit_light_plane(points_by_pose, rng: np.random.Generator, names=None,
     if g >= MIN_JACKKNIFE_POSES:
         plane = with_jackknife_uncertainty(plane, p[inliers], np.ones(int(inliers.sum())), pose[inliers],
                                            variance_factor=(g - 1) / (g - 3))
-    residuals = _pose_residuals(plane, p, pose, inliers, names)
     return LightPlaneFit(plane, residuals, p, pose, inliers, scale, _warnings(plane, residuals))
 
 
@@ -273,6 +275,21 @@ def _pose_residuals(plane: LightPlane, p, pose, inliers, names) -> tuple:
                  for k, name in enumerate(names))
 
 
+def _agrees(r: PoseResidual) -> bool:
+    """Whether most of a pose's stripe points (and 3 at least) lie on the plane."""
+    return r.n_inliers >= max(3, MIN_POSE_INLIER_FRACTION * r.n_points)
+
+
+def _check_poses_agree(residuals) -> None:
+    """Raise unless 2 poses or more have most of their stripe points on the plane: a plane through
+    one pose's line and a few points of the others is not the laser's."""
+    if sum(_agrees(r) for r in residuals) >= 2:
+        return
+    counts = ", ".join(f"pose {r.name}: {r.n_inliers} of {r.n_points}" for r in residuals if r.n_points)
+    raise InputError(f"the stripe points of fewer than 2 poses lie on one plane ({counts} points on it): a wrong "
+                     f"target pose, or another light on the target? The poses must show one laser's stripe")
+
+
 def _warnings(plane: LightPlane, residuals) -> tuple:
     """Poses too few or too alike to fix the plane; poses mostly off the plane."""
     out = []
@@ -285,7 +302,7 @@ def _warnings(plane: LightPlane, residuals) -> tuple:
         out.append(f"the plane's tilt is known only to {tilt_deg:.3f} deg (1 sigma): the poses are too few or "
                    f"too alike; add poses at other distances and tilts")
     for r in residuals:
-        if r.n_points and r.n_inliers < MIN_POSE_INLIER_FRACTION * r.n_points:
+        if r.n_points and not _agrees(r):
             out.append(f"pose {r.name}: only {r.n_inliers} of {r.n_points} stripe points lie on the plane "
                        f"(a wrong target pose, or another light on the target?)")
     return tuple(out)

@@ -30,6 +30,8 @@ from scanrig.reconstruct.light_plane_fit import LightPlaneFit, fit_light_plane
 MIN_POSE_POINTS = 20
 #: Samples per board edge of the projected outline (the edges bend under lens distortion).
 OUTLINE_SAMPLES = 32
+#: A laser-off image whose median is this much above its laser-on image's was shot brighter, DN.
+BRIGHTER_DARK_DN = 2.0
 
 
 @dataclass(frozen=True)
@@ -109,9 +111,16 @@ def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np
     board : ndarray of shape (n,), int
         Index of the board (in ``target.boards``) each lies on.
     """
+    q, board, _ = _stripe_on_target(camera, target, world_from_target, image, dark, color)
+    return q, board
+
+
+def _stripe_on_target(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
+                      color: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`stripe_pixels` ``q (n, 2)``, ``board (n,)`` and the fitted peak of each centre, ``(n,)`` DN."""
     from scanrig.laser.stripes import detect_stripe
 
-    none = np.zeros((0, 2)), np.zeros(0, int)
+    none = np.zeros((0, 2)), np.zeros(0, int), np.zeros(0)
     outlines = board_outlines(camera, target, world_from_target)
     if not outlines:
         return none
@@ -124,10 +133,12 @@ def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np
     table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)), check_color=False)
     first = np.asarray(table.column("rank")) == 0
     q = np.column_stack([np.asarray(table.column("u")), np.asarray(table.column("v"))])[first]
+    peak = np.asarray(table.column("peak"))[first]
     board = np.full(len(q), -1)
     for k, polygon in outlines:
         board[(board < 0) & inside_polygon(q, polygon)] = k
-    return q[board >= 0], board[board >= 0]
+    on = board >= 0
+    return q[on], board[on], peak[on]
 
 
 def points_on_target(camera, target, world_from_target, q: np.ndarray, board: np.ndarray) -> np.ndarray:
@@ -174,16 +185,21 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
     ------
     InputError
         An image of the wrong size, no stripe on the target in any image (with the colour the
-        images do show, when another colour finds it), fewer than 2 usable poses, all poses in
-        one plane.
+        images do show, when another colour finds it), another colour finding far more laser
+        light on the target than ``color`` (in the pose with the most stripe points), fewer than 2
+        usable poses (with the images left out and why), all poses in one plane, fewer than 2
+        poses on one plane.
+
+    Notes
+    -----
+    A laser-off twin brighter than its laser-on image was shot at another exposure (the target's
+    own shot, as turntable scanners take it): it gives the pose but is not subtracted, and a
+    warning says so.
     """
-    used, points, skipped, first = [], [], [], None
+    used, points, skipped, first, notes = [], [], [], None, []
     for pose in poses:
-        image = _read_sized(pose.image_path, camera)
-        dark = None if pose.dark_path is None else _read_sized(pose.dark_path, camera)
-        if dark is not None and dark.shape != image.shape:
-            raise FileFormatError(pose.dark_path, f"laser-off image is {dark.shape} but its laser-on image "
-                                                  f"{pose.image_path.name} is {image.shape}")
+        image, dark, note = _pose_frames(pose, camera)
+        notes += [note] if note else []
         first = first or (pose, image, dark)
         q, board = stripe_pixels(camera, target, pose.world_from_target, image, dark, color)
         p = points_on_target(camera, target, pose.world_from_target, q, board)
@@ -198,10 +214,18 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         hint = "" if first is None else _colour_hint(camera, target, color, *first)
         raise InputError(f"{folder}: no laser stripe found on the target in any of {len(poses)} image(s) with "
                          f"laser colour {color!r}{hint}")
+    if color != "grey":
+        # the pose with the most stripe points: a wrong colour still finds junk on every pose
+        pose, _, _ = max(used, key=lambda entry: len(entry[1]))
+        hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2])
+        if hint:
+            raise InputError(f"{folder}: {pose.image_path.name} shows little {color} laser light on the target{hint}")
     if len(points) < 2:
-        raise InputError(f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
-                         f"at least 2 are needed (6 or more at different distances and tilts)")
+        raise InputError("; ".join([f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
+                                    f"at least 2 are needed (6 or more at different distances and tilts)",
+                                    *skipped, *notes]))
     fit = fit_light_plane(points, rng, [pose.name for pose, _, _ in used])
+    fit = dataclasses.replace(fit, warnings=fit.warnings + tuple(notes))
     p_samples = []
     for sample_camera, sample_poses in samples:
         p = np.concatenate([points_on_target(sample_camera, target, sample_poses.get(pose.name, pose.world_from_target),
@@ -209,6 +233,25 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         if np.all(np.isfinite(p)):
             p_samples.append(p)
     return dataclasses.replace(fit, plane=with_sampled_uncertainty(fit.plane, p_samples)), skipped
+
+
+def _pose_frames(pose: LightPlanePose, camera) -> tuple[np.ndarray, np.ndarray | None, str | None]:
+    """A pose's laser-on image, the laser-off twin to subtract (None: none, or one shot brighter, at
+    another exposure: its median more than ``BRIGHTER_DARK_DN`` above the image's) and the warning
+    for such a twin (else None)."""
+    image = _read_sized(pose.image_path, camera)
+    if pose.dark_path is None:
+        return image, None, None
+    dark = _read_sized(pose.dark_path, camera)
+    if dark.shape != image.shape:
+        raise FileFormatError(pose.dark_path, f"laser-off image is {dark.shape} but its laser-on image "
+                                              f"{pose.image_path.name} is {image.shape}")
+    dark_median, median = float(np.median(dark)), float(np.median(image))
+    if dark_median <= median + BRIGHTER_DARK_DN:
+        return image, dark, None
+    return image, None, (f"{pose.dark_path}: brighter than its laser-on image {pose.image_path.name} (median "
+                         f"{dark_median:.0f} against {median:.0f} DN), another exposure: used for the target's pose "
+                         f"only, not subtracted (shoot a laser-off twin at the laser-on exposure)")
 
 
 def _read_sized(path: Path, camera) -> np.ndarray:
@@ -221,9 +264,18 @@ def _read_sized(path: Path, camera) -> np.ndarray:
 
 
 def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
-    """``"; the images show a red stripe: use --color red ..."`` when another colour finds it
-    (:func:`~scanrig.laser.colour_check.colour_shown`, on the first pose), else ``""``."""
-    best = colour_shown(image, color, lambda other: len(stripe_pixels(camera, target, pose.world_from_target,
-                                                                      image, dark, other)[0]),
-                        least=MIN_POSE_POINTS)
+    """``"; the images show a red stripe: use --color red ..."`` when another colour finds far more
+    laser light on the target (:func:`~scanrig.laser.colour_check.colour_shown`) in one pose's
+    image, else ``""``.
+
+    The light is the fitted peaks of the stripe centres on the target summed (0 with fewer than
+    ``MIN_POSE_POINTS`` centres), not their number: a wrong colour finds a centre on most scan lines
+    too, in noise and print (the real Ciclop board with a red laser: 331 centres in green, 863 in
+    blue, 611 in red), but not the laser's brightness.
+    """
+    def light(colour: str) -> float:
+        peak = _stripe_on_target(camera, target, pose.world_from_target, image, dark, colour)[2]
+        return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
+
+    best = colour_shown(image, color, light, least=np.finfo(float).tiny)
     return "" if best is None else f"; the images show a {best} stripe: {colour_advice(best)}"
