@@ -24,12 +24,24 @@ channel: it is unknown, not zero. In a colour frame the other channels tell whet
 there (a red beam changes green and blue by its crosstalk; a glint of room light, clipped in both
 frames, changes nothing), so such a pixel reads full scale where they changed by more than
 ``_CROSSTALK_SIGMAS`` of their noise, else 0.
+
+A scene that itself comes near the clip level (white paper under auto exposure) leaves the laser
+no room: noise and JPEG's ringing around print flag its pixels, and each would read full scale and
+be fitted as a stripe (a thousand blobs a frame: ten times a frame's time). Where the scene (the
+laser-off frame, else the frame; :func:`scene_level_cells`) is within ``SCENE_MARGINS`` ×
+``CLIP_MARGIN`` of the clip level on more than ``BRIGHT_SCENE_SHARE`` of the frame,
+:func:`prepare_image` warns (:class:`BrightSceneWarning`), and in a colour frame the pixels flagged
+where the scene is that bright (:func:`_clipped_scene`) are unknown and read 0, unless a laser's
+core shows (:func:`_show_cores`): with a laser-off frame, by its crosstalk raising both other
+channels; without one, by its width. Only such a core seeds a search there
+(:attr:`LaserImage.seed_floor`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +54,7 @@ from scanrig.laser.luma import LumaDifference, luma_difference
 from scanrig.laser.noise import (
     CORRELATED_NOISE_MIN,
     NOISE_CELL,
+    QUANTIZATION_SIGMA,
     NoiseModel,
     clutter_cells,
     correlated_noise_factor,
@@ -61,6 +74,36 @@ CLIP_MARGIN = 0.03
 #: Change of the non-laser channels, in noise σ, that shows the laser in a pixel clipped in both
 #: the frame and the dark frame.
 _CROSSTALK_SIGMAS = 6.0
+#: A ``BG_CELL`` cell's scene reaches the clip level where its level (:func:`background_cells` of the
+#: laser channel of the laser-off frame, or of the frame without one) is within this many
+#: ``CLIP_MARGIN`` of it: JPEG's ringing overshoots the edges of print there by about as much
+#: again. On the rendered paper of ``benchmarks/bench_colour_sweep.py`` the pixels flagged away from
+#: the stripe lie along the printed dots' edges; the share of the frame so bright is 0 at paper
+#: levels up to 0.92 of full scale, 0.86 at 0.94 (at 3 margins: 0.25 at 0.9, 0.89 at 0.92, where
+#: the real Ciclop board frame's dark red, clipped at 180 DN, would also change, 6 %).
+SCENE_MARGINS = 2.0
+#: Rise of each non-laser channel, in its noise σ, that shows a laser's core where the scene
+#: reaches the clip level (:func:`_crosstalk_raised`).
+_RISE_SIGMAS = 4.0
+#: Without a laser-off frame, a laser's clipped core where the scene reaches the clip level is a
+#: band at least this wide, px (:func:`_wide_cores`; a beam of σ 1.2 px 8 times past full scale
+#: clips over 7 px, one of σ 0.6 px over 3.5 px, which is lost there).
+_CORE_WIDTH_PX = 5
+#: ... in cells where noise alone flags at most this share of the pixels (0.46-0.72 of the cells'
+#: at a paper level of 0.96 of full scale, none at 0.94 but along the stripe, up to 0.17 there).
+_NOISE_CLIPPED_SHARE = 0.3
+#: A core's flanks, px: clipped in the laser channel where the scene reaches the clip level, the
+#: other channels risen too little to show the core (at a paper level of 0.94 of full scale, with
+#: the laser-off frame: rank 0 within 0.5 px on 0.69 of the rows, against 0.49 with none).
+_FLANK_PX = 2
+#: :func:`prepare_image` warns where the scene reaches the clip level on more than this share of
+#: the frame.
+BRIGHT_SCENE_SHARE = 0.1
+
+
+class BrightSceneWarning(UserWarning):
+    """The scene itself reaches the laser channel's clip level on a large part of a frame, where
+    the laser cannot show (:func:`prepare_image`): the exposure or the gain is too high."""
 
 
 @dataclass(frozen=True)
@@ -90,6 +133,11 @@ class LaserImage:
     colour : ColourFrames or None
         The raw colour frames, for the fit of clipped traces from all channels
         (:mod:`scanrig.laser.colour_fit`); None for a grey frame or a grey laser.
+    seed_floor : (Hc, Wc) float32 array or None
+        Per ``BG_CELL`` cell, the least signal, DN, that seeds a search there
+        (:func:`~scanrig.laser.peaks.prescan`): half of full scale where the scene itself reaches the
+        clip level, so that only a laser core the other channels show seeds there (:func:`prepare_image`),
+        0 elsewhere; None in a frame whose scene is not that bright.
     """
 
     signal: np.ndarray
@@ -100,6 +148,7 @@ class LaserImage:
     background: np.ndarray
     noise_model: NoiseModel | None = None
     colour: ColourFrames | None = None
+    seed_floor: np.ndarray | None = None
 
     def background_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Background level, DN, at integer signal coordinates ``u``, ``v`` (same shape)."""
@@ -232,35 +281,31 @@ def prepare_image(
         saturated = _clipped(image, color, clip_levels)
     if saturated is not None:
         saturated = _close_gaps(saturated)
-    dark_saturated = None
-    if saturated is not None and signal.dtype == np.float32:
-        # A white core reads as the brightest part of the trace; after dark subtraction, as what
-        # the laser added at least: a glint just below the clip level that noise pushes over it
-        # in one frame is not a spot at full scale.
-        # (flat indices of the few clipped pixels: a boolean mask would be scanned whole each time)
-        at = np.flatnonzero(saturated)
-        if dark is None:
-            np.put(signal, at, saturation_level)
+    unknown = scene_at = seed_floor = background = None
+    if saturated is not None:
+        if image.ndim == 2 and dark is None:  # the signal is the frame, and stays so: its background
+            background = scene_level = background_cells(signal)
         else:
-            # the dark frame's pixels there, as a one-row frame
-            dark_at = dark[np.divmod(at, saturated.shape[1])][None]
-            np.put(signal, at, saturation_level - np.maximum(_signal(dark_at, color)[0].astype(np.float32), 0.0))
-            # clipped in the dark frame too (asked only where the frame is clipped)
-            dark_clipped = _clipped(dark_at, color, clip_levels)
-            if dark_clipped is not None:
-                dark_saturated = np.zeros_like(saturated)
-                np.put(dark_saturated, at[dark_clipped[0]], True)
-                np.put(signal, at[dark_clipped[0]], 0.0)  # until the other channels say otherwise (below)
+            scene_level = scene_level_cells(image if dark is None else dark, color)
+        scene_clipped = scene_level >= (1.0 - SCENE_MARGINS * CLIP_MARGIN) * saturation_level
+        bright = _warn_if_bright(scene_clipped, color, saturation_level)
+        if signal.dtype == np.float32:
+            at = np.flatnonzero(saturated)
+            unknown = _clipped_to_full_scale(signal, at, dark, color, clip_levels, saturation_level)
+            if bright and colour is not None:
+                scene_at, near = _clipped_scene(at, signal.shape[1], scene_clipped, dark, colour.laser_channel,
+                                                saturation_level)
+                np.put(signal, scene_at, 0.0)  # until a laser's core shows (below)
+                if unknown is not None:
+                    np.put(unknown, scene_at, False)
+                seed_floor = np.where(near, np.float32(0.5 * saturation_level), np.float32(0.0))
     model = None
     if noise_sigma is None:
         rows, high_pass = high_pass_bands(signal)
         noise_sigma, noise = noise_from_bands(rows, high_pass, signal.shape,
                                                1.0 if color == "grey" or image.ndim == 2 else 0.5, local=True)
         if dark is not None:
-            invalid = saturated
-            if dark_saturated is not None:
-                invalid = dark_saturated if invalid is None else invalid | dark_saturated
-            model = fit_noise_model(rows, high_pass, dark, color, invalid)
+            model = fit_noise_model(rows, high_pass, dark, color, saturated)  # unknown pixels are among them
         factor = correlated_noise_factor(signal, rows, noise_sigma)
         if factor > CORRELATED_NOISE_MIN:
             noise_sigma, noise = noise_sigma * factor, noise * np.float32(factor)
@@ -270,11 +315,14 @@ def prepare_image(
         raise InputError(f"noise_sigma must be a positive number of DN, got {noise_sigma}")
     else:
         noise = np.full(cells_shape(signal.shape, NOISE_CELL), noise_sigma, np.float32)
-    if dark_saturated is not None and colour is not None and dark_saturated.any():
-        seen = _crosstalk_changed(colour, dark_saturated, _CROSSTALK_SIGMAS * noise_sigma)
-        signal[dark_saturated] = np.where(seen, np.float32(saturation_level), np.float32(0.0))
-    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background_cells(signal), model,
-                      colour)
+    if unknown is not None and colour is not None and unknown.any():
+        seen = _crosstalk_changed(colour, unknown, _CROSSTALK_SIGMAS * noise_sigma)
+        signal[unknown] = np.where(seen, np.float32(saturation_level), np.float32(0.0))
+    if scene_at is not None:
+        _show_cores(signal, saturated, scene_at, colour, near, scene_level, saturation_level)
+    if background is None:
+        background = background_cells(signal)
+    return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background, model, colour, seed_floor)
 
 
 def _close_gaps(clipped: np.ndarray) -> np.ndarray:
@@ -286,6 +334,81 @@ def _close_gaps(clipped: np.ndarray) -> np.ndarray:
     return cv2.morphologyEx(clipped.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool)
 
 
+def _clipped_to_full_scale(signal: np.ndarray, at: np.ndarray, dark: np.ndarray | None, color: str,
+                           clip_levels: np.ndarray, saturation_level: float) -> np.ndarray | None:
+    """Set the clipped pixels of a float32 ``signal`` ``(H, W)`` to full scale, in place, and
+    those clipped in the dark frame too (where the laser channel is unknown) to 0; return the mask
+    ``(H, W)`` of the latter (None when there are none).
+
+    A white core reads as the brightest part of the trace; after dark subtraction, as what the
+    laser added at least: a glint just below the clip level that noise pushes over it in one
+    frame is not a spot at full scale.
+
+    Parameters
+    ----------
+    at : (n,) int array
+        Flat indices of the clipped pixels (a boolean mask would be scanned whole each time).
+    dark : array or None
+        The laser-off frame (cropped like ``signal``).
+    clip_levels : (C,) float array
+        DN from which a pixel counts as clipped, per channel.
+    saturation_level : float
+        Full scale of the signal, DN.
+    """
+    if dark is None:
+        np.put(signal, at, saturation_level)
+        unknown_at = None
+    else:
+        # the dark frame's pixels there, as a one-row frame
+        dark_at = dark[np.divmod(at, signal.shape[1])][None]
+        np.put(signal, at, saturation_level - np.maximum(_signal(dark_at, color)[0].astype(np.float32), 0.0))
+        # clipped in the dark frame too (asked only where the frame is clipped)
+        dark_clipped = _clipped(dark_at, color, clip_levels)
+        unknown_at = None if dark_clipped is None else dark_clipped[0]
+    if unknown_at is None:
+        return None
+    unknown = np.zeros(signal.shape, bool)
+    np.put(unknown, at[unknown_at], True)
+    np.put(signal, at[unknown_at], 0.0)  # until the other channels say otherwise (prepare_image)
+    return unknown
+
+
+def scene_level_cells(scene: np.ndarray, color: str) -> np.ndarray:
+    """The scene's level in the laser's channel (the brightest channel for a grey laser), DN, per
+    ``BG_CELL`` cell: :func:`background_cells`, which a stripe does not reach.
+
+    Parameters
+    ----------
+    scene : (H, W) or (H, W, 3) uint8 or uint16 array
+        The laser-off frame, or the frame itself without one, DN.
+    color : {"grey", "red", "green", "blue"}
+        The laser's colour.
+
+    Returns
+    -------
+    (ceil(H / BG_CELL), ceil(W / BG_CELL)) float32 array
+    """
+    sub = scene[::_BG_STRIDE, ::_BG_STRIDE]
+    if sub.ndim == 3:
+        sub = sub.max(axis=2) if color == "grey" else sub[:, :, _CHANNEL[color]]
+    return _cell_median(sub, scene.shape[:2])
+
+
+def _warn_if_bright(scene_clipped: np.ndarray, color: str, saturation_level: float) -> bool:
+    """Whether the cells ``scene_clipped`` (where the scene is within ``SCENE_MARGINS`` ×
+    ``CLIP_MARGIN`` of the clip level) are more than
+    ``BRIGHT_SCENE_SHARE`` of the frame; if so, :class:`BrightSceneWarning`."""
+    share = float(scene_clipped.mean())
+    bright = share > BRIGHT_SCENE_SHARE
+    if bright:
+        channel = "frame's" if color == "grey" else f"{color} channel's"
+        warnings.warn(BrightSceneWarning(
+            f"the scene itself is within {CLIP_MARGIN:.0%} of the {channel} clip level ({saturation_level:g} DN) "
+            f"on {share:.0%} of the frame, where the laser cannot show: lower the exposure or the gain"),
+            stacklevel=3)
+    return bright
+
+
 def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float) -> np.ndarray:
     """Whether the non-laser channels differ between frame and dark frame by more than
     ``threshold`` DN (sum of absolute changes) at the pixels ``where``: ``(n,)`` bool."""
@@ -293,6 +416,130 @@ def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float
     on = colour.image[where][:, others].astype(np.float32)
     off = colour.dark[where][:, others].astype(np.float32)
     return np.abs(on - off).sum(axis=1) > threshold
+
+
+def _clipped_scene(at: np.ndarray, width: int, scene_clipped: np.ndarray, dark: np.ndarray | None,
+                   channel: int, saturation_level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The clipped pixels where the scene itself reaches the clip level, and the cells searched as
+    such.
+
+    Parameters
+    ----------
+    at : (n,) int array
+        Flat indices of the clipped pixels, in rows of ``width``.
+    scene_clipped : (Hc, Wc) bool array
+        ``BG_CELL`` cells whose scene is within ``SCENE_MARGINS`` × ``CLIP_MARGIN`` of the clip level.
+    dark : (H, W, 3) array or None
+        The laser-off frame.
+    channel : int
+        The laser's channel.
+    saturation_level : float
+        Its clip level, DN.
+
+    Returns
+    -------
+    scene_at : (m,) int array
+        The pixels of ``at`` in the cells ``near`` or, with ``dark``, where its laser ``channel`` is
+        within ``SCENE_MARGINS`` × ``CLIP_MARGIN`` of ``saturation_level``.
+    near : (Hc, Wc) bool array
+        With ``dark``, ``scene_clipped`` and the two cells around each (print darkens its cells,
+        and JPEG rings around it); without one, every cell: the scene is known per cell only.
+    """
+    near = _around(scene_clipped) if dark is not None else np.ones_like(scene_clipped)
+    v, u = np.divmod(at, width)
+    inside = cell_lookup(near, BG_CELL, u, v)
+    if dark is not None:
+        inside |= dark[v, u, channel] >= (1.0 - SCENE_MARGINS * CLIP_MARGIN) * saturation_level
+    return at[inside], near
+
+
+def _show_cores(signal: np.ndarray, saturated: np.ndarray, scene_at: np.ndarray, colour: ColourFrames,
+                near: np.ndarray, scene_level: np.ndarray, saturation_level: float) -> None:
+    """Of the clipped pixels ``scene_at`` where the scene reaches the clip level (read 0 in
+    ``signal``), set those of a laser's core to full scale ``saturation_level``, in place, and
+    leave clipped (``saturated``, unknown) only the core and its flanks (``_FLANK_PX`` around:
+    the beam's laser channel clips beyond the core, where the other channels rise too little).
+    A core is told by :func:`_crosstalk_raised` with the laser-off frame (the other channels'
+    noise from the cells ``near``), else by :func:`_wide_cores` (the scene's level ``scene_level``
+    per cell)."""
+    import cv2
+
+    if colour.dark is not None:
+        core = _crosstalk_raised(colour, scene_at, near)
+    else:
+        core = _wide_cores(saturated, scene_at, scene_level, float(colour.clip_level[colour.laser_channel]))
+    np.put(signal, scene_at[core], saturation_level)
+    cores = np.zeros(saturated.shape, np.uint8)
+    np.put(cores, scene_at[core], 1)
+    side = 2 * _FLANK_PX + 1
+    flank = cv2.dilate(cores, np.ones((side, side), np.uint8)).view(bool).ravel()[scene_at]
+    np.put(saturated, scene_at[~flank], False)
+
+
+def _around(cells: np.ndarray) -> np.ndarray:
+    """The cells ``cells`` and the two around each (5 × 5 dilation)."""
+    import cv2
+
+    return cv2.dilate(cells.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool)
+
+
+def _wide_cores(saturated: np.ndarray, at: np.ndarray, scene_level: np.ndarray, clip_level: float) -> np.ndarray:
+    """Which of the clipped pixels ``at`` (flat indices of ``saturated`` ``(H, W)``) belong to a
+    laser's core, told without a laser-off frame: ``(n,)`` bool.
+
+    A beam clips a band several pixels wide across; JPEG's ringing around print flags rings a pixel
+    or two thick, which an opening of ``_CORE_WIDTH_PX`` removes. Where noise alone flags more than
+    ``_NOISE_CLIPPED_SHARE`` of the pixels (their share per ``BG_CELL`` cell, 5 × 5 median over
+    cells, which a stripe does not reach) they merge into wide bands of their own, and where the
+    scene within two cells (``scene_level`` (Hc, Wc), DN, per cell) reaches the laser channel's
+    ``clip_level`` (DN from which a pixel is flagged) its clipped paper is as wide as a core: no
+    core is told there.
+    """
+    import cv2
+
+    opened = cv2.morphologyEx(saturated.view(np.uint8), cv2.MORPH_OPEN,
+                              np.ones((_CORE_WIDTH_PX, _CORE_WIDTH_PX), np.uint8)).view(bool)
+    share = _cell_median(saturated.view(np.uint8)[::_BG_STRIDE, ::_BG_STRIDE], saturated.shape)
+    highest_around = cv2.dilate(scene_level, np.ones((5, 5), np.uint8))
+    v, u = np.divmod(at, saturated.shape[1])
+    return (opened.ravel()[at] & (cell_lookup(share, BG_CELL, u, v) <= _NOISE_CLIPPED_SHARE)
+            & (cell_lookup(highest_around, BG_CELL, u, v) < clip_level))
+
+
+def _crosstalk_raised(colour: ColourFrames, at: np.ndarray, scene_clipped: np.ndarray) -> np.ndarray:
+    """Whether the laser's crosstalk raises the non-laser channels above the laser-off frame at the
+    pixels ``at`` (flat indices, where the scene reaches the laser channel's clip level): ``(n,)``
+    bool.
+
+    Each of the two must rise by more than ``_RISE_SIGMAS`` of its own noise (a laser raises both;
+    JPEG's ringing, alike in both frames, neither) from a level below its clip level (where the
+    scene clips them too, they cannot show the laser). Their noise is :func:`_change_noise` in the
+    cells ``scene_clipped``: the laser signal's noise estimate does not serve, as a scene clipped in
+    every channel reads exactly 0 there.
+    """
+    others = [c for c in range(3) if c != colour.laser_channel]
+    v, u = np.divmod(at, colour.image.shape[1])
+    off = colour.dark[v, u][:, others].astype(np.float32)
+    room = np.flatnonzero(np.all(off < colour.clip_level[others], axis=1))
+    rise = colour.image[v[room], u[room]][:, others].astype(np.float32) - off[room]
+    seen = np.zeros(at.size, bool)
+    seen[room] = np.all(rise > _RISE_SIGMAS * _change_noise(colour, others, scene_clipped), axis=1)
+    return seen
+
+
+def _change_noise(colour: ColourFrames, others: list[int], cells: np.ndarray) -> np.ndarray:
+    """Robust σ ``(2,)``, DN, of the change of the channels ``others`` from the laser-off frame to
+    the frame, over every ``_BG_STRIDE``-th pixel of the ``BG_CELL`` cells ``cells`` where neither
+    is clipped in the laser-off frame (the laser misses most of them); at least the quantisation's."""
+    sub = (slice(None, None, _BG_STRIDE), slice(None, None, _BG_STRIDE))
+    on, off = (f[sub][:, :, others].astype(np.float32) for f in (colour.image, colour.dark))
+    v, u = np.mgrid[: on.shape[0], : on.shape[1]] * _BG_STRIDE
+    use = cell_lookup(cells, BG_CELL, u, v) & np.all(off < colour.clip_level[others], axis=2)
+    floor = np.float32(QUANTIZATION_SIGMA * np.sqrt(2.0))  # of a difference of two frames
+    if not use.any():
+        return np.full(len(others), floor)
+    change = on[use] - off[use]
+    return np.maximum(1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0), floor)
 
 
 def check_frame(image, name: str) -> None:
@@ -410,9 +657,13 @@ def background_cells(signal: np.ndarray) -> np.ndarray:
     Cell means of every ``_BG_STRIDE``-th pixel, then a 5 × 5 median over cells, which ignores
     structures (the trace) narrower than about two cells while following shading and texture.
     """
+    return _cell_median(signal[::_BG_STRIDE, ::_BG_STRIDE], signal.shape)
+
+
+def _cell_median(sub: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """:func:`background_cells` of a frame of ``shape`` from its every ``_BG_STRIDE``-th pixel ``sub``."""
     import cv2
 
-    hc, wc = cells_shape(signal.shape, BG_CELL)
-    sub = np.ascontiguousarray(signal[::_BG_STRIDE, ::_BG_STRIDE], dtype=np.float32)
-    means = cv2.resize(sub, (wc, hc), interpolation=cv2.INTER_AREA)
+    hc, wc = cells_shape(shape, BG_CELL)
+    means = cv2.resize(np.ascontiguousarray(sub, dtype=np.float32), (wc, hc), interpolation=cv2.INTER_AREA)
     return cv2.medianBlur(means, 5) if min(hc, wc) >= 3 else np.full_like(means, np.median(means))

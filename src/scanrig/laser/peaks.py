@@ -64,7 +64,8 @@ def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     σ is the noise or, in a colour frame where it is larger, the frame's structured clutter
     (:attr:`~scanrig.laser.image.LaserImage.clutter`), which a stripe's peak must clear in the
     detection test as well: a block of JPEG texture alone seeds no search and adds no structure
-    to :func:`worth_scanning`.
+    to :func:`worth_scanning`. Where the scene itself reaches the clip level, the threshold is at
+    least :attr:`~scanrig.laser.image.LaserImage.seed_floor`.
 
     Returns
     -------
@@ -77,7 +78,10 @@ def prescan(li: LaserImage, k_seed: float = 4.5) -> np.ndarray:
     # the threshold on the background's cells (noise cells are whole multiples of them), then
     # repeated to blocks: the same float32 values as computed block by block, 16× fewer
     noise = _upsample(np.maximum(li.noise, li.clutter), NOISE_CELL // BG_CELL, li.background.shape)
-    threshold = _upsample(li.background + np.float32(k_seed) * noise, BG_CELL // BLOCK, shape)
+    cells = li.background + np.float32(k_seed) * noise
+    if li.seed_floor is not None:  # a scene at the clip level: only a laser core it shows seeds there
+        cells = np.maximum(cells, li.seed_floor)
+    threshold = _upsample(cells, BG_CELL // BLOCK, shape)
     return np.subtract(block_max, threshold, dtype=np.float32)
 
 

@@ -8,7 +8,9 @@ its metadata; ``resume=True`` skips those, including frames that had no candidat
 
 Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
 equal is detected as grey, 16-bit frames are clipped where their data clip (found from them), and
-:func:`colour_mismatches` names the cameras whose frames show a laser of another colour.
+:func:`colour_mismatches` names the cameras whose frames show a laser of another colour. A frame
+whose scene itself reaches the clip level (:class:`~scanrig.laser.image.BrightSceneWarning`) is
+named in that warning, issued again in the calling process whichever worker detected it.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import dataclasses
 import functools
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +34,7 @@ from scanrig.io.session import Session, describe_image, natural_key, read_image
 from scanrig.laser.colour_check import colour_advice, colour_shown
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
-from scanrig.laser.image import LASER_COLORS
+from scanrig.laser.image import LASER_COLORS, BrightSceneWarning
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
@@ -208,7 +211,9 @@ def detect_session(
         nonlocal last_write
         if isinstance(result, tuple):  # (path, reason) of a bad input file
             raise FileFormatError(*result)
-        tables.append(result)
+        for message in result.warnings:
+            warnings.warn(BrightSceneWarning(message), stacklevel=3)
+        tables.append(result.table)
         finished.extend((job.camera, stem) for stem, _ in job.frames)
         if progress:
             progress(len(finished) - len(done), total)
@@ -273,6 +278,11 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     -------
     pyarrow.Table
         ``traces.parquet`` rows.
+
+    Warns
+    -----
+    BrightSceneWarning
+        The detector's, naming ``camera`` and ``frame``.
     """
     from scanrig.laser.spots import detect_spots
     from scanrig.laser.stripes import detect_stripe
@@ -280,28 +290,57 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     # The session compares the colours once per camera (colour_mismatches), naming the camera:
     # the library's check of every frame is not needed here.
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
-    return detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
-                  saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame,
-                  check_color=False, **scan)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", BrightSceneWarning)
+        table = detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
+                       saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame,
+                       check_color=False, **scan)
+    for message in _bright_scene_messages(caught):
+        warnings.warn(BrightSceneWarning(f"camera {camera!r} frame {frame!r}: {message}"), stacklevel=2)
+    return table
+
+
+def _bright_scene_messages(caught: list[warnings.WarningMessage]) -> list[str]:
+    """The messages of the :class:`~scanrig.laser.image.BrightSceneWarning` among the warnings
+    ``caught``; the others are issued again."""
+    messages = []
+    for w in caught:
+        if issubclass(w.category, BrightSceneWarning):
+            messages.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return messages
+
+
+@dataclass
+class _JobResult:
+    """A chunk's rows and the messages of its :class:`~scanrig.laser.image.BrightSceneWarning`
+    (a worker's warnings do not reach the calling process by themselves)."""
+
+    table: pa.Table
+    warnings: list[str]
 
 
 def _run_job(job: _Job):
-    """Detect in a chunk of frames (runs in a worker). Returns a table, or (path, reason) on bad input."""
+    """Detect in a chunk of frames (runs in a worker). Returns a :class:`_JobResult`, or (path,
+    reason) on bad input."""
     path = job.dark_path
     try:
         dark = job.dark_image if job.dark_path is None else read_image(job.dark_path)
         out = []
-        for stem, path in job.frames:
-            img = read_image(path)
-            if img.shape != job.shape or str(img.dtype) != job.dtype:
-                return (path, f"frame is {describe_image(img.shape, img.dtype)} but {Path(job.reference).name} of "
-                              f"camera {job.camera!r} is {describe_image(job.shape, job.dtype)}")
-            out.append(detect_frame(img, dark, job.options, job.camera, stem))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", BrightSceneWarning)
+            for stem, path in job.frames:
+                img = read_image(path)
+                if img.shape != job.shape or str(img.dtype) != job.dtype:
+                    return (path, f"frame is {describe_image(img.shape, img.dtype)} but {Path(job.reference).name} "
+                                  f"of camera {job.camera!r} is {describe_image(job.shape, job.dtype)}")
+                out.append(detect_frame(img, dark, job.options, job.camera, stem))
     except FileFormatError as exc:
         return (str(exc.path), exc.reason)
     except InputError as exc:
         return (path, str(exc))
-    return pa.concat_tables(out) if out else empty_table()
+    return _JobResult(pa.concat_tables(out) if out else empty_table(), _bright_scene_messages(caught))
 
 
 def _write(session: Session, cameras: list[str], tables: list[pa.Table], finished, options) -> pa.Table:
