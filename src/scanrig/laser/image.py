@@ -74,14 +74,14 @@ CLIP_MARGIN = 0.03
 #: Change of the non-laser channels, in noise σ, that shows the laser in a pixel clipped in both
 #: the frame and the dark frame.
 _CROSSTALK_SIGMAS = 6.0
-#: A ``BG_CELL`` cell's scene reaches the clip level where its level (:func:`background_cells` of the
-#: laser channel of the laser-off frame, or of the frame without one) is within this many
-#: ``CLIP_MARGIN`` of it: JPEG's ringing overshoots the edges of print there by about as much
-#: again. On the rendered paper of ``benchmarks/bench_colour_sweep.py`` the pixels flagged away from
-#: the stripe lie along the printed dots' edges; the share of the frame so bright is 0 at paper
-#: levels up to 0.92 of full scale, 0.86 at 0.94 (at 3 margins: 0.25 at 0.9, 0.89 at 0.92, where
-#: the real Ciclop board frame's dark red, clipped at 180 DN, would also change, 6 %).
-SCENE_MARGINS = 2.0
+#: A ``BG_CELL`` cell's scene reaches the clip level where its level (:func:`scene_level_cells`) is
+#: within this many ``CLIP_MARGIN`` of it: JPEG's ringing overshoots the edges of print there by
+#: about as much again. On the rendered paper of ``benchmarks/bench_colour_sweep.py`` the pixels
+#: flagged away from the stripe lie along the printed dots' edges from a paper level of 0.92 of full
+#: scale (3-6 times a frame's time); the share of the frame this bright is 0 up to 0.88, 0.15-0.35
+#: at 0.9 and 0.88-0.94 from 0.92 on; on the real Ciclop board frame, whose dark red clips at 180
+#: DN over a part of the scene, 6 % (under ``BRIGHT_SCENE_SHARE``: its detections do not change).
+SCENE_MARGINS = 3.0
 #: Rise of each non-laser channel, in its noise σ, that shows a laser's core where the scene
 #: reaches the clip level (:func:`_crosstalk_raised`).
 _RISE_SIGMAS = 4.0
