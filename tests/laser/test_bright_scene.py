@@ -15,7 +15,7 @@ import pytest
 from scanrig.io.session import write_image
 from scanrig.laser.image import BrightSceneWarning, prepare_image
 from scanrig.laser.peaks import prescan, worth_scanning
-from scanrig.laser.session_detect import DetectOptions, detect_frame, detect_session
+from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_frame, detect_session
 from scanrig.laser.stripe_candidates import prominent
 from scanrig.laser.stripes import detect_stripe
 from scanrig.sim.colour import colour_frame
@@ -79,9 +79,14 @@ def test_a_session_names_each_bright_frame_from_its_worker(tmp_path):
     for camera, paper in (("cam0", NORMAL), ("cam1", AT)):
         (tmp_path / "scan" / camera).mkdir(parents=True)
         write_image(tmp_path / "scan" / camera / "f0.png", frames(paper)[0])
+    options = DetectOptions(mode="stripe", color="red")
     with pytest.warns(BrightSceneWarning) as caught:
-        detect_session(tmp_path, DetectOptions(mode="stripe", color="red"), workers=2)
+        table = detect_session(tmp_path, options, workers=2)
     assert [str(w.message).split(":")[0] for w in caught] == ["camera 'cam1' frame 'f0'"]
+    # nor is the bright frame said to show a blue laser (blue found the red beam's white core)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BrightSceneWarning)  # warned once, above
+        assert colour_mismatches(tmp_path, options, table) == []
 
 
 def candidates(on, dark) -> tuple[int, int]:

@@ -373,7 +373,10 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
     colour that finds more than :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light
     (:func:`_laser_light`; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan
     lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
-    checked. Costs three or four detections of one frame per colour camera.
+    checked, nor a frame whose scene reaches the requested colour's clip level
+    (:class:`~scanrig.laser.image.BrightSceneWarning`, issued by the detection): that colour finds
+    little there whatever the laser's, and another colour finds the white core of a beam of any
+    colour. Costs three or four detections of one frame per colour camera.
 
     Parameters
     ----------
@@ -402,7 +405,16 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         dark_path = session.dark_path(camera)
         light_with = functools.cache(functools.partial(_frame_light, image,
                                                        None if dark_path is None else read_image(dark_path), options))
-        best = colour_shown(image, options.color, light_with, least=0.0)
+        # the frames' own BrightSceneWarning was issued by the detection: none again here
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", BrightSceneWarning)
+            light_with(options.color)
+        if _bright_scene_messages(caught):  # the requested colour finds little whatever the laser's:
+            continue  # another colour's white cores are no evidence
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", BrightSceneWarning)
+            best = colour_shown(image, options.color, light_with, least=0.0)
+        _bright_scene_messages(caught)
         if best is None:
             continue
         what = (f"no {options.color} laser in {paths[stem]}" if light_with(options.color) == 0 else
