@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from scanrig.io.session import write_image
-from scanrig.laser.image import BrightSceneWarning, prepare_image
+from scanrig.laser.bright_scene import BrightSceneWarning
+from scanrig.laser.image import prepare_image
 from scanrig.laser.peaks import prescan, worth_scanning
 from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_frame, detect_session
 from scanrig.laser.stripe_candidates import prominent

@@ -25,28 +25,28 @@ there (a red beam changes green and blue by its crosstalk; a glint of room light
 frames, changes nothing), so such a pixel reads full scale where they changed by more than
 ``_CROSSTALK_SIGMAS`` of their noise, else 0.
 
-A scene that itself comes near the clip level (white paper under auto exposure) leaves the laser
-no room: noise and JPEG's ringing around print flag its pixels, and each would read full scale and
-be fitted as a stripe (a thousand blobs a frame: ten times a frame's time). Where the scene (the
-laser-off frame, else the frame; :func:`scene_level_cells`) is within ``SCENE_MARGINS`` ×
-``CLIP_MARGIN`` of the clip level on more than ``BRIGHT_SCENE_SHARE`` of the frame,
-:func:`prepare_image` warns (:class:`BrightSceneWarning`), and in a colour frame the pixels flagged
-where the scene is that bright (:func:`_clipped_scene`) are unknown and read 0, unless a laser's
-core shows (:func:`_show_cores`): with a laser-off frame, by its crosstalk raising both other
-channels; without one, by its width. Only such a core seeds a search there
-(:attr:`LaserImage.seed_floor`).
+A scene that itself comes near the clip level (white paper under auto exposure):
+:mod:`scanrig.laser.bright_scene`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from scanrig.errors import InputError, ShapeError
+from scanrig.laser.background import BG_CELL, background_cells
+from scanrig.laser.bright_scene import (
+    hide_clipped_scene,
+    scene_level_cells,
+    scene_reaches_clip,
+    show_cores,
+    warn_if_bright,
+)
+from scanrig.laser.channels import CHANNEL, CLIP_MARGIN, LASER_COLORS
 from scanrig.laser.clip_level import channel_clip_levels
 from scanrig.laser.colour_check import grey_frames
 from scanrig.laser.colour_frames import ColourFrames
@@ -54,7 +54,6 @@ from scanrig.laser.luma import LumaDifference, luma_difference
 from scanrig.laser.noise import (
     CORRELATED_NOISE_MIN,
     NOISE_CELL,
-    QUANTIZATION_SIGMA,
     NoiseModel,
     clutter_cells,
     correlated_noise_factor,
@@ -64,46 +63,9 @@ from scanrig.laser.noise import (
 )
 from scanrig.laser.pixels import cell_lookup, cells_shape, padded_box_sums
 
-LASER_COLORS = ("grey", "red", "green", "blue")
-_CHANNEL = {"red": 0, "green": 1, "blue": 2}
-#: Background cells are ``BG_CELL`` pixels square, sampled every ``_BG_STRIDE`` pixels.
-BG_CELL = 16
-_BG_STRIDE = 4
-#: A pixel within this fraction of the saturation level counts as clipped.
-CLIP_MARGIN = 0.03
 #: Change of the non-laser channels, in noise σ, that shows the laser in a pixel clipped in both
 #: the frame and the dark frame.
 _CROSSTALK_SIGMAS = 6.0
-#: A ``BG_CELL`` cell's scene reaches the clip level where its level (:func:`scene_level_cells`) is
-#: within this many ``CLIP_MARGIN`` of it: JPEG's ringing overshoots the edges of print there by
-#: about as much again. On the rendered paper of ``benchmarks/bench_colour_sweep.py`` the pixels
-#: flagged away from the stripe lie along the printed dots' edges from a paper level of 0.92 of full
-#: scale (3-6 times a frame's time); the share of the frame this bright is 0 up to 0.88, 0.15-0.35
-#: at 0.9 and 0.88-0.94 from 0.92 on; on the real Ciclop board frame, whose dark red clips at 180
-#: DN over a part of the scene, 6 % (under ``BRIGHT_SCENE_SHARE``: its detections do not change).
-SCENE_MARGINS = 3.0
-#: Rise of each non-laser channel, in its noise σ, that shows a laser's core where the scene
-#: reaches the clip level (:func:`_crosstalk_raised`).
-_RISE_SIGMAS = 4.0
-#: Without a laser-off frame, a laser's clipped core where the scene reaches the clip level is a
-#: band at least this wide, px (:func:`_wide_cores`; a beam of σ 1.2 px 8 times past full scale
-#: clips over 7 px, one of σ 0.6 px over 3.5 px, which is lost there).
-_CORE_WIDTH_PX = 5
-#: ... in cells where noise alone flags at most this share of the pixels (0.46-0.72 of the cells'
-#: at a paper level of 0.96 of full scale, none at 0.94 but along the stripe, up to 0.17 there).
-_NOISE_CLIPPED_SHARE = 0.3
-#: A core's flanks, px: clipped in the laser channel where the scene reaches the clip level, the
-#: other channels risen too little to show the core (at a paper level of 0.94 of full scale, with
-#: the laser-off frame: rank 0 within 0.5 px on 0.69 of the rows, against 0.49 with none).
-_FLANK_PX = 2
-#: :func:`prepare_image` warns where the scene reaches the clip level on more than this share of
-#: the frame.
-BRIGHT_SCENE_SHARE = 0.1
-
-
-class BrightSceneWarning(UserWarning):
-    """The scene itself reaches the laser channel's clip level on a large part of a frame, where
-    the laser cannot show (:func:`prepare_image`): the exposure or the gain is too high."""
 
 
 @dataclass(frozen=True)
@@ -126,7 +88,8 @@ class LaserImage:
         Local noise standard deviation per ``NOISE_CELL`` pixel cell (see :func:`estimate_noise`):
         shot noise makes bright parts of the scene noisier than dark ones. The pre-scan uses it.
     background : (Hc, Wc) float32 array, DN
-        Local background per ``BG_CELL`` pixel cell (see :func:`background_cells`).
+        Local background per ``BG_CELL`` pixel cell
+        (see :func:`~scanrig.laser.background.background_cells`).
     noise_model : NoiseModel or None
         Per-pixel noise, when a dark frame was subtracted and the noise was not given; then
         :meth:`noise_at` uses it instead of ``noise``.
@@ -267,12 +230,12 @@ def prepare_image(
                              f"got {saturation_level}")
         levels = np.full(image.shape[2] if image.ndim == 3 else 1, float(saturation_level))
     # the level a clipped pixel of the signal stands for: its channel's, or the brightest channel's (grey)
-    saturation_level = float(levels.max() if image.ndim == 2 or color == "grey" else levels[_CHANNEL[color]])
+    saturation_level = float(levels.max() if image.ndim == 2 or color == "grey" else levels[CHANNEL[color]])
     clip_levels = levels * (1.0 - CLIP_MARGIN)
     colour = None
     if image.ndim == 3 and color != "grey":
-        signal, raw_laser = _colour_signal(image, dark, _CHANNEL[color])
-        colour = ColourFrames(image, dark, _CHANNEL[color], clip_levels, raw_laser)
+        signal, raw_laser = _colour_signal(image, dark, CHANNEL[color])
+        colour = ColourFrames(image, dark, CHANNEL[color], clip_levels, raw_laser)
         saturated = _clipped(image, color, clip_levels, raw_laser)
     else:
         signal = _signal(image, color)
@@ -287,18 +250,14 @@ def prepare_image(
             background = scene_level = background_cells(signal)
         else:
             scene_level = scene_level_cells(image if dark is None else dark, color)
-        scene_clipped = scene_level >= (1.0 - SCENE_MARGINS * CLIP_MARGIN) * saturation_level
-        bright = _warn_if_bright(scene_clipped, color, saturation_level)
+        scene_clipped = scene_reaches_clip(scene_level, saturation_level)
+        bright = warn_if_bright(scene_clipped, color, saturation_level)
         if signal.dtype == np.float32:
             at = np.flatnonzero(saturated)
             unknown = _clipped_to_full_scale(signal, at, dark, color, clip_levels, saturation_level)
-            if bright and colour is not None:
-                scene_at, near = _clipped_scene(at, signal.shape[1], scene_clipped, dark, colour.laser_channel,
-                                                saturation_level)
-                np.put(signal, scene_at, 0.0)  # until a laser's core shows (below)
-                if unknown is not None:
-                    np.put(unknown, scene_at, False)
-                seed_floor = np.where(near, np.float32(0.5 * saturation_level), np.float32(0.0))
+            if bright and colour is not None:  # 0 until a laser's core shows (below)
+                scene_at, near, seed_floor = hide_clipped_scene(signal, unknown, at, scene_clipped, dark,
+                                                                colour.laser_channel, saturation_level)
     model = None
     if noise_sigma is None:
         rows, high_pass = high_pass_bands(signal)
@@ -319,7 +278,7 @@ def prepare_image(
         seen = _crosstalk_changed(colour, unknown, _CROSSTALK_SIGMAS * noise_sigma)
         signal[unknown] = np.where(seen, np.float32(saturation_level), np.float32(0.0))
     if scene_at is not None:
-        _show_cores(signal, saturated, scene_at, colour, near, scene_level, saturation_level)
+        show_cores(signal, saturated, scene_at, colour, near, scene_level, saturation_level)
     if background is None:
         background = background_cells(signal)
     return LaserImage(signal, saturated, (u0, v0), float(noise_sigma), noise, background, model, colour, seed_floor)
@@ -373,42 +332,6 @@ def _clipped_to_full_scale(signal: np.ndarray, at: np.ndarray, dark: np.ndarray 
     return unknown
 
 
-def scene_level_cells(scene: np.ndarray, color: str) -> np.ndarray:
-    """The scene's level in the laser's channel (the brightest channel for a grey laser), DN, per
-    ``BG_CELL`` cell: :func:`background_cells`, which a stripe does not reach.
-
-    Parameters
-    ----------
-    scene : (H, W) or (H, W, 3) uint8 or uint16 array
-        The laser-off frame, or the frame itself without one, DN.
-    color : {"grey", "red", "green", "blue"}
-        The laser's colour.
-
-    Returns
-    -------
-    (ceil(H / BG_CELL), ceil(W / BG_CELL)) float32 array
-    """
-    sub = scene[::_BG_STRIDE, ::_BG_STRIDE]
-    if sub.ndim == 3:
-        sub = sub.max(axis=2) if color == "grey" else sub[:, :, _CHANNEL[color]]
-    return _cell_median(sub, scene.shape[:2])
-
-
-def _warn_if_bright(scene_clipped: np.ndarray, color: str, saturation_level: float) -> bool:
-    """Whether the cells ``scene_clipped`` (where the scene is within ``SCENE_MARGINS`` ×
-    ``CLIP_MARGIN`` of the clip level) are more than
-    ``BRIGHT_SCENE_SHARE`` of the frame; if so, :class:`BrightSceneWarning`."""
-    share = float(scene_clipped.mean())
-    bright = share > BRIGHT_SCENE_SHARE
-    if bright:
-        channel = "frame's" if color == "grey" else f"{color} channel's"
-        warnings.warn(BrightSceneWarning(
-            f"the scene itself is within {CLIP_MARGIN:.0%} of the {channel} clip level ({saturation_level:g} DN) "
-            f"on {share:.0%} of the frame, where the laser cannot show: lower the exposure or the gain"),
-            stacklevel=3)
-    return bright
-
-
 def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float) -> np.ndarray:
     """Whether the non-laser channels differ between frame and dark frame by more than
     ``threshold`` DN (sum of absolute changes) at the pixels ``where``: ``(n,)`` bool."""
@@ -416,130 +339,6 @@ def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float
     on = colour.image[where][:, others].astype(np.float32)
     off = colour.dark[where][:, others].astype(np.float32)
     return np.abs(on - off).sum(axis=1) > threshold
-
-
-def _clipped_scene(at: np.ndarray, width: int, scene_clipped: np.ndarray, dark: np.ndarray | None,
-                   channel: int, saturation_level: float) -> tuple[np.ndarray, np.ndarray]:
-    """The clipped pixels where the scene itself reaches the clip level, and the cells searched as
-    such.
-
-    Parameters
-    ----------
-    at : (n,) int array
-        Flat indices of the clipped pixels, in rows of ``width``.
-    scene_clipped : (Hc, Wc) bool array
-        ``BG_CELL`` cells whose scene is within ``SCENE_MARGINS`` × ``CLIP_MARGIN`` of the clip level.
-    dark : (H, W, 3) array or None
-        The laser-off frame.
-    channel : int
-        The laser's channel.
-    saturation_level : float
-        Its clip level, DN.
-
-    Returns
-    -------
-    scene_at : (m,) int array
-        The pixels of ``at`` in the cells ``near`` or, with ``dark``, where its laser ``channel`` is
-        within ``SCENE_MARGINS`` × ``CLIP_MARGIN`` of ``saturation_level``.
-    near : (Hc, Wc) bool array
-        With ``dark``, ``scene_clipped`` and the two cells around each (print darkens its cells,
-        and JPEG rings around it); without one, every cell: the scene is known per cell only.
-    """
-    near = _around(scene_clipped) if dark is not None else np.ones_like(scene_clipped)
-    v, u = np.divmod(at, width)
-    inside = cell_lookup(near, BG_CELL, u, v)
-    if dark is not None:
-        inside |= dark[v, u, channel] >= (1.0 - SCENE_MARGINS * CLIP_MARGIN) * saturation_level
-    return at[inside], near
-
-
-def _show_cores(signal: np.ndarray, saturated: np.ndarray, scene_at: np.ndarray, colour: ColourFrames,
-                near: np.ndarray, scene_level: np.ndarray, saturation_level: float) -> None:
-    """Of the clipped pixels ``scene_at`` where the scene reaches the clip level (read 0 in
-    ``signal``), set those of a laser's core to full scale ``saturation_level``, in place, and
-    leave clipped (``saturated``, unknown) only the core and its flanks (``_FLANK_PX`` around:
-    the beam's laser channel clips beyond the core, where the other channels rise too little).
-    A core is told by :func:`_crosstalk_raised` with the laser-off frame (the other channels'
-    noise from the cells ``near``), else by :func:`_wide_cores` (the scene's level ``scene_level``
-    per cell)."""
-    import cv2
-
-    if colour.dark is not None:
-        core = _crosstalk_raised(colour, scene_at, near)
-    else:
-        core = _wide_cores(saturated, scene_at, scene_level, float(colour.clip_level[colour.laser_channel]))
-    np.put(signal, scene_at[core], saturation_level)
-    cores = np.zeros(saturated.shape, np.uint8)
-    np.put(cores, scene_at[core], 1)
-    side = 2 * _FLANK_PX + 1
-    flank = cv2.dilate(cores, np.ones((side, side), np.uint8)).view(bool).ravel()[scene_at]
-    np.put(saturated, scene_at[~flank], False)
-
-
-def _around(cells: np.ndarray) -> np.ndarray:
-    """The cells ``cells`` and the two around each (5 × 5 dilation)."""
-    import cv2
-
-    return cv2.dilate(cells.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool)
-
-
-def _wide_cores(saturated: np.ndarray, at: np.ndarray, scene_level: np.ndarray, clip_level: float) -> np.ndarray:
-    """Which of the clipped pixels ``at`` (flat indices of ``saturated`` ``(H, W)``) belong to a
-    laser's core, told without a laser-off frame: ``(n,)`` bool.
-
-    A beam clips a band several pixels wide across; JPEG's ringing around print flags rings a pixel
-    or two thick, which an opening of ``_CORE_WIDTH_PX`` removes. Where noise alone flags more than
-    ``_NOISE_CLIPPED_SHARE`` of the pixels (their share per ``BG_CELL`` cell, 5 × 5 median over
-    cells, which a stripe does not reach) they merge into wide bands of their own, and where the
-    scene within two cells (``scene_level`` (Hc, Wc), DN, per cell) reaches the laser channel's
-    ``clip_level`` (DN from which a pixel is flagged) its clipped paper is as wide as a core: no
-    core is told there.
-    """
-    import cv2
-
-    opened = cv2.morphologyEx(saturated.view(np.uint8), cv2.MORPH_OPEN,
-                              np.ones((_CORE_WIDTH_PX, _CORE_WIDTH_PX), np.uint8)).view(bool)
-    share = _cell_median(saturated.view(np.uint8)[::_BG_STRIDE, ::_BG_STRIDE], saturated.shape)
-    highest_around = cv2.dilate(scene_level, np.ones((5, 5), np.uint8))
-    v, u = np.divmod(at, saturated.shape[1])
-    return (opened.ravel()[at] & (cell_lookup(share, BG_CELL, u, v) <= _NOISE_CLIPPED_SHARE)
-            & (cell_lookup(highest_around, BG_CELL, u, v) < clip_level))
-
-
-def _crosstalk_raised(colour: ColourFrames, at: np.ndarray, scene_clipped: np.ndarray) -> np.ndarray:
-    """Whether the laser's crosstalk raises the non-laser channels above the laser-off frame at the
-    pixels ``at`` (flat indices, where the scene reaches the laser channel's clip level): ``(n,)``
-    bool.
-
-    Each of the two must rise by more than ``_RISE_SIGMAS`` of its own noise (a laser raises both;
-    JPEG's ringing, alike in both frames, neither) from a level below its clip level (where the
-    scene clips them too, they cannot show the laser). Their noise is :func:`_change_noise` in the
-    cells ``scene_clipped``: the laser signal's noise estimate does not serve, as a scene clipped in
-    every channel reads exactly 0 there.
-    """
-    others = [c for c in range(3) if c != colour.laser_channel]
-    v, u = np.divmod(at, colour.image.shape[1])
-    off = colour.dark[v, u][:, others].astype(np.float32)
-    room = np.flatnonzero(np.all(off < colour.clip_level[others], axis=1))
-    rise = colour.image[v[room], u[room]][:, others].astype(np.float32) - off[room]
-    seen = np.zeros(at.size, bool)
-    seen[room] = np.all(rise > _RISE_SIGMAS * _change_noise(colour, others, scene_clipped), axis=1)
-    return seen
-
-
-def _change_noise(colour: ColourFrames, others: list[int], cells: np.ndarray) -> np.ndarray:
-    """Robust σ ``(2,)``, DN, of the change of the channels ``others`` from the laser-off frame to
-    the frame, over every ``_BG_STRIDE``-th pixel of the ``BG_CELL`` cells ``cells`` where neither
-    is clipped in the laser-off frame (the laser misses most of them); at least the quantisation's."""
-    sub = (slice(None, None, _BG_STRIDE), slice(None, None, _BG_STRIDE))
-    on, off = (f[sub][:, :, others].astype(np.float32) for f in (colour.image, colour.dark))
-    v, u = np.mgrid[: on.shape[0], : on.shape[1]] * _BG_STRIDE
-    use = cell_lookup(cells, BG_CELL, u, v) & np.all(off < colour.clip_level[others], axis=2)
-    floor = np.float32(QUANTIZATION_SIGMA * np.sqrt(2.0))  # of a difference of two frames
-    if not use.any():
-        return np.full(len(others), floor)
-    change = on[use] - off[use]
-    return np.maximum(1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0), floor)
 
 
 def check_frame(image, name: str) -> None:
@@ -585,7 +384,7 @@ def _clipped(image: np.ndarray, color: str, clip_levels: np.ndarray,
         import cv2
 
         # the channel extracted by OpenCV first: twice as fast as comparing it in place, strided
-        k = _CHANNEL[color]
+        k = CHANNEL[color]
         plane = cv2.extractChannel(np.ascontiguousarray(image), k) if laser_channel is None else laser_channel
         level = levels[k]
     # a frame without clipped pixels (the usual case) is told by its maximum: one SIMD pass, six
@@ -601,7 +400,7 @@ def _signal(image: np.ndarray, color: str) -> np.ndarray:
         return image
     if color == "grey":
         return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
-    return _colour_signal(image, None, _CHANNEL[color])[0]
+    return _colour_signal(image, None, CHANNEL[color])[0]
 
 
 #: Bytes of the float32 strip of a colour frame's three channels that :func:`_colour_signal` works
@@ -649,21 +448,3 @@ def _colour_signal(image: np.ndarray, dark: np.ndarray | None, k: int) -> tuple[
         # the values are half-integers, exact in float32 whatever the order of the sums
         cv2.transform(strip, weights, dst=signal[rows])
     return signal, cv2.extractChannel(np.ascontiguousarray(image), k)
-
-
-def background_cells(signal: np.ndarray) -> np.ndarray:
-    """Local background, DN, per ``BG_CELL``-pixel cell: shape (ceil(H/cell), ceil(W/cell)).
-
-    Cell means of every ``_BG_STRIDE``-th pixel, then a 5 × 5 median over cells, which ignores
-    structures (the trace) narrower than about two cells while following shading and texture.
-    """
-    return _cell_median(signal[::_BG_STRIDE, ::_BG_STRIDE], signal.shape)
-
-
-def _cell_median(sub: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """:func:`background_cells` of a frame of ``shape`` from its every ``_BG_STRIDE``-th pixel ``sub``."""
-    import cv2
-
-    hc, wc = cells_shape(shape, BG_CELL)
-    means = cv2.resize(np.ascontiguousarray(sub, dtype=np.float32), (wc, hc), interpolation=cv2.INTER_AREA)
-    return cv2.medianBlur(means, 5) if min(hc, wc) >= 3 else np.full_like(means, np.median(means))

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanrig.laser.image import BG_CELL, LaserImage
+from scanrig.laser.background import BG_CELL
+from scanrig.laser.image import LaserImage
 from scanrig.laser.noise import NOISE_CELL
 from scanrig.laser.pixels import padded_box_sums, pixel_blocks
 

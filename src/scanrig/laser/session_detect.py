@@ -9,7 +9,7 @@ its metadata; ``resume=True`` skips those, including frames that had no candidat
 Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
 equal is detected as grey, 16-bit frames are clipped where their data clip (found from them), and
 :func:`colour_mismatches` names the cameras whose frames show a laser of another colour. A frame
-whose scene itself reaches the clip level (:class:`~scanrig.laser.image.BrightSceneWarning`) is
+whose scene itself reaches the clip level (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`) is
 named in that warning, issued again in the calling process whichever worker detected it.
 """
 
@@ -31,10 +31,11 @@ import pyarrow.compute as pc
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
+from scanrig.laser.bright_scene import BrightSceneWarning
+from scanrig.laser.channels import LASER_COLORS
 from scanrig.laser.colour_check import colour_advice, colour_shown
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
-from scanrig.laser.image import LASER_COLORS, BrightSceneWarning
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
@@ -301,7 +302,7 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
 
 
 def _bright_scene_messages(caught: list[warnings.WarningMessage]) -> list[str]:
-    """The messages of the :class:`~scanrig.laser.image.BrightSceneWarning` among the warnings
+    """The messages of the :class:`~scanrig.laser.bright_scene.BrightSceneWarning` among the warnings
     ``caught``; the others are issued again."""
     messages = []
     for w in caught:
@@ -314,7 +315,7 @@ def _bright_scene_messages(caught: list[warnings.WarningMessage]) -> list[str]:
 
 @dataclass
 class _JobResult:
-    """A chunk's rows and the messages of its :class:`~scanrig.laser.image.BrightSceneWarning`
+    """A chunk's rows and the messages of its :class:`~scanrig.laser.bright_scene.BrightSceneWarning`
     (a worker's warnings do not reach the calling process by themselves)."""
 
     table: pa.Table
@@ -374,7 +375,7 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
     (:func:`_laser_light`; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan
     lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
     checked, nor a frame whose scene reaches the requested colour's clip level
-    (:class:`~scanrig.laser.image.BrightSceneWarning`, issued by the detection): that colour finds
+    (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`, issued by the detection): that colour finds
     little there whatever the laser's, and another colour finds the white core of a beam of any
     colour. Costs three or four detections of one frame per colour camera.
 
