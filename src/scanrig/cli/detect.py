@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -36,8 +38,9 @@ def command(
 
     Writes SESSION/traces.parquet (one row per candidate, every candidate, ranked) atomically and
     every 30 s while running; with --resume an interrupted run continues where it stopped. A camera
-    whose frames show a laser of another colour is named, one line each; no candidate in any frame
-    is an error (exit 2) and writes nothing.
+    whose frames show a laser of another colour, and a frame whose scene itself reaches the clip
+    level, are named in one warning line each; no candidate in any frame is an error (exit 2) and
+    writes nothing.
 
     Example: scanrig detect demo_session --mode spot --color red --workers 2 --overlay 00000
     """
@@ -59,7 +62,7 @@ def command(
     options = options_from_session(sess, mode, color, roi_box, k_detect, direction, dark,
                                    _saturation_level(saturation_level))
     stage = f"detecting {options.mode}s"
-    with stage_progress() as progress:
+    with stage_progress() as progress, _detector_warnings_as_lines():
         table = detect_session(sess.root, options, workers=workers, resume=resume,
                                progress=lambda done, total: progress(stage, done, total))
     n_frames = sum(len(sess.image_paths("scan", cam)) for cam in sess.camera_names("scan"))
@@ -74,6 +77,31 @@ def command(
     if overlay is not None:
         for path in write_overlays(sess, overlay, table):
             typer.echo(f"overlay: {path}")
+
+
+@contextmanager
+def _detector_warnings_as_lines() -> Iterator[None]:
+    """Within the block, print each detector warning (a frame whose scene reaches the clip level,
+    :class:`~scanrig.laser.bright_scene.BrightSceneWarning`) as one ``warning: <message>`` line on
+    stderr, as they are issued, like the command's other warnings: Python's own format would
+    prefix the library's file and line, which tell a user nothing. Other warnings are printed as
+    Python prints them."""
+    import warnings
+
+    from scanrig.laser.bright_scene import BrightSceneWarning
+
+    with warnings.catch_warnings():
+        python_show = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, BrightSceneWarning):
+                typer.echo(f"warning: {message}", err=True)
+            else:
+                python_show(message, category, filename, lineno, file, line)
+
+        warnings.simplefilter("always", BrightSceneWarning)  # also a text this process showed before
+        warnings.showwarning = show
+        yield
 
 
 def _saturation_level(text: str | None) -> float | str | None:
