@@ -15,5 +15,5 @@ def test_a_bright_frame_is_one_warning_line(tmp_path, capsys, workers):
         write_image(tmp_path / "scan" / camera / "00012.png", frames(paper)[0])
     assert main(["detect", str(tmp_path), "--mode", "stripe", "--color", "red", "--workers", workers]) == 0
     assert capsys.readouterr().err.splitlines() == [
-        "warning: camera 'cam1' frame '00012': the scene itself is within 3% of the red channel's clip level "
+        "warning: camera 'cam1' frame '00012': the scene itself is within 9% of the red channel's clip level "
         "(255 DN) on 91% of the frame, where the laser cannot show: lower the exposure or the gain"]

@@ -55,7 +55,7 @@ def quiet_detect(on, dark):
 @pytest.mark.parametrize("use_dark", [False, True])
 def test_a_scene_at_the_clip_level_warns_what_to_do(use_dark):
     on, off, _ = frames(AT)
-    with pytest.warns(BrightSceneWarning, match=r"within 3% of the red channel's clip level \(255 DN\) on "
+    with pytest.warns(BrightSceneWarning, match=r"within 9% of the red channel's clip level \(255 DN\) on "
                                                 r"\d+% of the frame.*lower the exposure or the gain"):
         detect_stripe(on, color="red", dark=off if use_dark else None)
 

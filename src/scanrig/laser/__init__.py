@@ -4,9 +4,13 @@ Modules, bottom to top:
 
 - :mod:`~scanrig.laser.pixels`: pixel blocks, 3 × 3 box sums and per-cell lookups.
 - :mod:`~scanrig.laser.noise`: the signal's noise, per cell or per pixel from the laser-off frame.
+- :mod:`~scanrig.laser.channels`, :mod:`~scanrig.laser.background`: laser colours and their
+  channels, the clip margin; the background level per cell.
 - :mod:`~scanrig.laser.clip_level`: the level at which each channel clips, from the frames.
 - :mod:`~scanrig.laser.colour_check`: grey frames stored as colour, and frames whose laser shows
   in another colour than the one asked for.
+- :mod:`~scanrig.laser.bright_scene`: a scene that itself reaches the clip level: its warning,
+  and the clipped pixels there that are no laser.
 - :mod:`~scanrig.laser.image`: laser-colour channel, dark-frame subtraction, region of interest,
   saturation mask, background; the signal the detectors see.
 - :mod:`~scanrig.laser.luma`: the luma difference of a colour frame and its laser-off frame.

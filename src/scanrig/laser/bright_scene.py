@@ -98,7 +98,7 @@ def warn_if_bright(scene_clipped: np.ndarray, color: str, saturation_level: floa
     if bright:
         channel = "frame's" if color == "grey" else f"{color} channel's"
         warnings.warn(BrightSceneWarning(
-            f"the scene itself is within {CLIP_MARGIN:.0%} of the {channel} clip level ({saturation_level:g} DN) "
+            f"the scene itself is within {SCENE_MARGINS * CLIP_MARGIN:.0%} of the {channel} clip level ({saturation_level:g} DN) "
             f"on {share:.0%} of the frame, where the laser cannot show: lower the exposure or the gain"),
             stacklevel=3)
     return bright
