@@ -19,6 +19,7 @@ import warnings
 
 import numpy as np
 
+from scanrig.geometry.uncertainty import MAD_TO_SIGMA
 from scanrig.laser.background import BG_CELL, BG_STRIDE, strided_cell_medians
 from scanrig.laser.channels import CHANNEL, CLIP_MARGIN
 from scanrig.laser.colour_frames import ColourFrames
@@ -253,7 +254,7 @@ def _crosstalk_raised(colour: ColourFrames, at: np.ndarray, scene_clipped: np.nd
     cells ``scene_clipped``: the laser signal's noise estimate does not serve, as a scene clipped in
     every channel reads exactly 0 there.
     """
-    others = [c for c in range(3) if c != colour.laser_channel]
+    others = colour.other_channels
     v, u = np.divmod(at, colour.image.shape[1])
     off = colour.dark[v, u][:, others].astype(np.float32)
     room = np.flatnonzero(np.all(off < colour.clip_level[others], axis=1))
@@ -275,5 +276,5 @@ def _change_noise(colour: ColourFrames, others: list[int], cells: np.ndarray) ->
     if not use.any():
         return np.full(len(others), floor)
     change = on[use] - off[use]
-    return np.maximum(1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0), floor)
+    return np.maximum(MAD_TO_SIGMA * np.median(np.abs(change - np.median(change, axis=0)), axis=0), floor)
 

@@ -45,6 +45,11 @@ class ColourFrames:
             object.__setattr__(self, "raw_laser", cv2.extractChannel(np.ascontiguousarray(self.image),
                                                                      self.laser_channel))
 
+    @property
+    def other_channels(self) -> list[int]:
+        """The two channels that are not the laser's, in order."""
+        return [c for c in range(3) if c != self.laser_channel]
+
     @functools.cached_property
     def laser_plane(self) -> np.ndarray:
         """The laser channel, minus the dark frame's, ``(H, W)``, DN: float32, or without a dark

@@ -335,7 +335,7 @@ def _clipped_to_full_scale(signal: np.ndarray, at: np.ndarray, dark: np.ndarray 
 def _crosstalk_changed(colour: ColourFrames, where: np.ndarray, threshold: float) -> np.ndarray:
     """Whether the non-laser channels differ between frame and dark frame by more than
     ``threshold`` DN (sum of absolute changes) at the pixels ``where``: ``(n,)`` bool."""
-    others = [c for c in range(3) if c != colour.laser_channel]
+    others = colour.other_channels
     on = colour.image[where][:, others].astype(np.float32)
     off = colour.dark[where][:, others].astype(np.float32)
     return np.abs(on - off).sum(axis=1) > threshold

@@ -201,13 +201,13 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         image, dark, note = _pose_frames(pose, camera)
         notes += [note] if note else []
         first = first or (pose, image, dark)
-        q, board = stripe_pixels(camera, target, pose.world_from_target, image, dark, color)
+        q, board, peak = _stripe_on_target(camera, target, pose.world_from_target, image, dark, color)
         p = points_on_target(camera, target, pose.world_from_target, q, board)
         ok = np.all(np.isfinite(p), axis=1)
         if ok.sum() < MIN_POSE_POINTS:
             skipped.append(f"{pose.image_path}: no laser stripe on the target ({int(ok.sum())} points), skipped")
         else:
-            used.append((pose, q[ok], board[ok]))
+            used.append((pose, q[ok], board[ok], _light(peak)))
             points.append(p[ok])
     folder = poses[0].image_path.parent if poses else Path("light_plane") / camera.name
     if not points:
@@ -216,20 +216,20 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
                          f"laser colour {color!r}{hint}")
     if color != "grey":
         # the pose with the most stripe points: a wrong colour still finds junk on every pose
-        pose, _, _ = max(used, key=lambda entry: len(entry[1]))
-        hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2])
+        pose, _, _, light = max(used, key=lambda entry: len(entry[1]))
+        hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2], own_light=light)
         if hint:
             raise InputError(f"{folder}: {pose.image_path.name} shows little {color} laser light on the target{hint}")
     if len(points) < 2:
         raise InputError("; ".join([f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
                                     f"at least 2 are needed (6 or more at different distances and tilts)",
                                     *skipped, *notes]))
-    fit = fit_light_plane(points, rng, [pose.name for pose, _, _ in used])
+    fit = fit_light_plane(points, rng, [pose.name for pose, *_ in used])
     fit = dataclasses.replace(fit, warnings=fit.warnings + tuple(notes))
     p_samples = []
     for sample_camera, sample_poses in samples:
         p = np.concatenate([points_on_target(sample_camera, target, sample_poses.get(pose.name, pose.world_from_target),
-                                             q, board) for pose, q, board in used])[fit.inliers]
+                                             q, board) for pose, q, board, _ in used])[fit.inliers]
         if np.all(np.isfinite(p)):
             p_samples.append(p)
     return dataclasses.replace(fit, plane=with_sampled_uncertainty(fit.plane, p_samples)), skipped
@@ -263,7 +263,14 @@ def _read_sized(path: Path, camera) -> np.ndarray:
     return image
 
 
-def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
+def _light(peak: np.ndarray) -> float:
+    """The laser light of one pose's stripe centres on the target, DN: their fitted peaks ``(n,)``
+    summed (0 with fewer than ``MIN_POSE_POINTS``)."""
+    return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
+
+
+def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark,
+                 own_light: float | None = None) -> str:
     """``"; the images show a red stripe: use --color red ..."`` when another colour finds far more
     laser light on the target (:func:`~scanrig.laser.colour_check.colour_shown`) in one pose's
     image, else ``""``.
@@ -271,11 +278,12 @@ def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.nda
     The light is the fitted peaks of the stripe centres on the target summed (0 with fewer than
     ``MIN_POSE_POINTS`` centres), not their number: a wrong colour finds a centre on most scan lines
     too, in noise and print (the real Ciclop board with a red laser: 331 centres in green, 863 in
-    blue, 611 in red), but not the laser's brightness.
+    blue, 611 in red), but not the laser's brightness. ``own_light``: ``color``'s, when already known.
     """
     def light(colour: str) -> float:
-        peak = _stripe_on_target(camera, target, pose.world_from_target, image, dark, colour)[2]
-        return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
+        if colour == color and own_light is not None:
+            return own_light
+        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour)[2])
 
     best = colour_shown(image, color, light, least=np.finfo(float).tiny)
     return "" if best is None else f"; the images show a {best} stripe: {colour_advice(best)}"
