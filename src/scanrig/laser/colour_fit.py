@@ -641,7 +641,10 @@ def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarr
     """Start values ``(n, 7)``: the width, the best of the trial widths refined between its neighbours
     (:func:`_refined_width`), then per channel the amplitude and the background solved linearly for
     the best trial width from that channel's usable pixels (``y, usable (n, M, 3)``, ``trial (k, M)``
-    the unit profile of each trial width, the first ``k`` of ``_START_WIDTHS``, centred on the seed)."""
+    the unit profile of each trial width, the first ``k`` of ``_START_WIDTHS``, centred on the seed;
+    ``noise (3,)`` each channel's σ, DN). A channel with fewer than three usable pixels starts
+    without a profile (amplitude 0, except the laser channel's 1 DN), its background their mean
+    (0 with none)."""
     w = usable.transpose(0, 2, 1).astype(float)  # (n, 3, M)
     yy = y.transpose(0, 2, 1)
     wy = w * yy
@@ -653,7 +656,10 @@ def _start(y: np.ndarray, usable: np.ndarray, trial: np.ndarray, noise: np.ndarr
     s_gg = w @ (trial * trial).T
     s_yy = np.einsum("ncm,ncm->nc", wy, yy)[..., None]
     amp, _, solvable = _levels(s_gg, s_g, s_w, s_gy, s_y)
-    amp = np.where(solvable, amp, 0.0)  # a channel with no usable flank: 0
+    # a channel with no usable flank, or with two usable pixels or fewer, which its two levels fit
+    # exactly whatever the profile (there the amplitude interpolates their noise: 1e27 DN on two
+    # pixels of a flank's tail): 0
+    amp = np.where(solvable & (s_w > 2), amp, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         bg = np.where(s_w > 0, (s_y - amp * s_g) / np.maximum(s_w, 1e-300), 0.0)
     # the weighted squared residual of each linear fit, from the same sums (no (n, 3, k, M) array):
