@@ -8,8 +8,9 @@ on their own, so they are checked here: :func:`grey_frames` turns equal channels
 frame they are, :func:`colour_shown` names the colour that finds far more laser than the one
 asked for, and :func:`check_laser_colour` raises when it does, for the library's detectors. That
 takes a detection in every other colour, so it runs only where the requested colour found no
-bright laser and its signal dips below its background more than it rises above it
-(:func:`dips_more_than_rises`), as a laser of another colour makes it do.
+bright laser and either its signal dips below its background more than it rises above it
+(:func:`dips_more_than_rises`), as a laser of another colour makes it do, or its clipped
+candidates are the white core of another colour's beam (:func:`clipped_candidates`).
 """
 
 from __future__ import annotations
@@ -17,10 +18,13 @@ from __future__ import annotations
 import contextvars
 import functools
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
 from scanrig.errors import InputError
+from scanrig.laser.background import BG_CELL
+from scanrig.laser.pixels import cell_lookup
 
 #: The colours a colour frame's laser may have (one channel each).
 CHANNEL_COLOURS = ("red", "green", "blue")
@@ -50,6 +54,10 @@ TRUSTED_LINES_FRACTION = 1.0 / 8.0
 #: same decision as every 8th or 16th on the Ciclop and rendered frames, 150 frame and colour
 #: pairs: 34 x 60 lines of a 1920 x 1080 frame).
 _DIP_LINE_STEP = 32
+#: :func:`clipped_candidates` follows a clipped run at most this far from a candidate's pixel, px: a
+#: red beam 8 times past full scale clips red over 8-10 px across the rendered stripe, and green
+#: over the middle 1-3 of them.
+CORE_REACH_PX = 16
 #: True while :func:`colour_shown` asks its ``found_with`` for other colours: the detections made
 #: there are comparisons, not checked themselves (:func:`check_laser_colour`).
 _COMPARING = contextvars.ContextVar("comparing_colours", default=False)
@@ -144,33 +152,48 @@ def colour_advice(colour: str) -> str:
     return f"use --color {colour} (or laser_color = {colour!r} in session.toml)"
 
 
-def laser_light(table, stripes: bool, least_peak: float = 0.0) -> float:
-    """The laser light a detection found, DN: the fitted peaks of at least ``least_peak`` of its
-    rank-0 candidates summed (stripes: one stripe crosses a scan line once; 0 where such
-    candidates lie on fewer than ``LEAST_STRIPE_LINES`` lines), or of all its candidates (spots: a
-    frame may hold several).
+def laser_light(table, stripes: bool, least_peak: float = 0.0, clipped: np.ndarray | None = None) -> float:
+    """The laser light a detection found, DN: the fitted peaks of at least ``least_peak`` (or
+    ``clipped``) of its rank-0 candidates summed (stripes: one stripe crosses a scan line once; 0
+    where such candidates lie on fewer than ``LEAST_STRIPE_LINES`` lines), or of all its
+    candidates (spots: a frame may hold several).
 
     Parameters
     ----------
     table : pyarrow.Table
-        One frame's detections (``traces.parquet`` columns).
+        One frame's detections (``traces.parquet`` columns), ``n`` rows.
     stripes : bool
         Stripe candidates (else spots).
     least_peak : float
-        Candidates with a lower fitted peak are not counted, DN.
+        Candidates with a lower fitted peak are not counted, DN...
+    clipped : (n,) bool array, optional
+        ... unless set here: light past full scale, whose fitted peak is only a lower bound
+        (:attr:`ClippedCandidates.own`).
     """
-    peak = _bright_peaks(table, stripes, least_peak)
-    return float(peak.sum()) if not stripes or peak.size >= LEAST_STRIPE_LINES else 0.0
+    peak = _bright_peaks(table, stripes, least_peak, clipped)
+    return float(peak.sum()) if _enough(peak.size, stripes) else 0.0
 
 
-def _bright_peaks(table, stripes: bool, least_peak: float) -> np.ndarray:
-    """The fitted peaks of at least ``least_peak`` DN of the rank-0 candidates (stripes) or of all
-    candidates (spots) of ``table``, ``(n,)``."""
+def _enough(n_counted: int, stripes: bool) -> bool:
+    """Whether ``n_counted`` rank-0 stripe candidates (spot candidates) make a laser: on at least
+    ``LEAST_STRIPE_LINES`` scan lines, or one spot."""
+    return n_counted >= (LEAST_STRIPE_LINES if stripes else 1)
+
+
+def _bright_peaks(table, stripes: bool, least_peak: float, clipped: np.ndarray | None = None) -> np.ndarray:
+    """The fitted peaks of the rank-0 candidates (stripes) or of all candidates (spots) of
+    ``table`` with at least ``least_peak`` DN or set in ``clipped`` ``(n,)`` bool, ``(m,)``."""
     peak = table["peak"].to_numpy()
     counted = peak >= least_peak
-    if stripes:
-        counted &= table["rank"].to_numpy() == 0
-    return peak[counted]
+    if clipped is not None:
+        counted |= clipped
+    return peak[counted & _line_candidates(table, stripes)]
+
+
+def _line_candidates(table, stripes: bool) -> np.ndarray:
+    """The candidates that may be laser light, ``(n,)`` bool: rank 0 (stripes: one stripe crosses a
+    scan line once), or all (spots)."""
+    return table["rank"].to_numpy() == 0 if stripes else np.ones(len(table), bool)
 
 
 def checked_detection(detect: Callable, color: str, stripes: bool, k_detect: float, check: bool = True):
@@ -196,7 +219,7 @@ def checked_detection(detect: Callable, color: str, stripes: bool, k_detect: flo
     """
     table, li = detect(color)
     if check:
-        check_laser_colour(li, color, table, lambda other: detect(other)[0], stripes, k_detect)
+        check_laser_colour(li, color, table, detect, stripes, k_detect)
     return table
 
 
@@ -209,9 +232,15 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
     ``TRUSTED_LINES_FRACTION`` of the frame's scan lines at least, for stripes) is taken as it is:
     the usual case, in which nothing more is computed. Otherwise, where the signal dips below its
     background more than it rises above it (:func:`dips_more_than_rises`), as a laser of another
-    colour makes it do, every other colour is detected and one that finds more than
-    ``FEWER_FACTOR`` times the light of ``color`` is named (:func:`colour_shown`). Not checked:
-    grey frames and grey lasers, and detections made for :func:`colour_shown` itself.
+    colour makes it do, or where ``color``'s clipped candidates are the white core of another
+    colour's beam (:func:`clipped_candidates`, on ``LEAST_STRIPE_LINES`` scan lines or one spot),
+    every other colour is detected and one that finds more than ``FEWER_FACTOR`` times the light of
+    ``color`` is named (:func:`colour_shown`). In that comparison a candidate on light past full
+    scale in its own colour (:attr:`ClippedCandidates.own`) counts whatever its fitted peak, a
+    lower bound there: the rendered red stripe at 1 x full scale rises 85 DN above its paper (a
+    third of the clip level) while red clips on 401 of its 480 rows; the Ciclop's frames without
+    the laser clip on none. Not checked: grey frames and grey lasers, and detections made for
+    :func:`colour_shown` itself.
 
     Parameters
     ----------
@@ -222,7 +251,8 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
     table : pyarrow.Table
         The detections in ``color``.
     detect_with : callable
-        ``detect_with(colour) -> pyarrow.Table``: the frame's detections in another colour.
+        ``detect_with(colour) -> (pyarrow.Table, LaserImage)``: the frame's detections in another
+        colour and its signal.
     stripes : bool
         Stripe detections (else spots).
     k_detect : float
@@ -232,7 +262,8 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
     ------
     InputError
         ``"color='red': no red laser in this frame; its blue channel shows one (103454 DN of laser
-        light): use color='blue' (red and blue are swapped where RGB data were stored as BGR)"``.
+        light): use color='blue' (red and blue are swapped where RGB data were stored as BGR)"``;
+        the part in brackets only for red and blue.
     """
     if li.colour is None or _COMPARING.get():
         return
@@ -240,16 +271,130 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
     bright = _bright_peaks(table, stripes, least_peak).size
     if bright >= (TRUSTED_LINES_FRACTION * min(li.signal.shape) if stripes else 1):
         return
-    if not dips_more_than_rises(li, k_detect):
+    clipped = clipped_candidates(li, table)
+    if not (_enough(np.count_nonzero(clipped.cores & _line_candidates(table, stripes)), stripes)
+            or dips_more_than_rises(li, k_detect)):
         return
-    light = functools.cache(lambda colour: laser_light(detect_with(colour), stripes, least_peak))
-    found = laser_light(table, stripes, least_peak)
+
+    @functools.cache
+    def light(colour: str) -> float:
+        other, other_li = detect_with(colour)
+        return laser_light(other, stripes, least_peak, clipped_candidates(other_li, other).own)
+
+    found = laser_light(table, stripes, least_peak, clipped.own)
     best = colour_shown(li.colour.image, color, lambda colour: found if colour == color else light(colour), 0.0)
     if best is not None:
         what = (f"no {color} laser in this frame" if found == 0 else
                 f"{color} finds {light(best) / found:.0f} times less laser light than {best} in this frame")
+        swapped = (" (red and blue are swapped where RGB data were stored as BGR)"
+                   if {color, best} == {"red", "blue"} else "")
         raise InputError(f"color={color!r}: {what}; its {best} channel shows one ({light(best):.0f} DN of laser "
-                         f"light): use color={best!r} (red and blue are swapped where RGB data were stored as BGR)")
+                         f"light): use color={best!r}{swapped}")
+
+
+class ClippedCandidates(NamedTuple):
+    """Which candidates of one colour sit on a clipped run of its channel (:func:`clipped_candidates`).
+
+    Attributes
+    ----------
+    own : (n,) bool array
+        Its channel is clipped at the candidate's pixel over a run across the beam that reaches
+        beyond every other channel's clipped there, on both sides: light past full scale in this
+        colour.
+    cores : (n,) bool array
+        Its channel is clipped at the candidate's pixel, inside a clipped run of another channel
+        that reaches further on both sides: the white core of that colour's beam.
+    """
+
+    own: np.ndarray
+    cores: np.ndarray
+
+
+def clipped_candidates(li, table) -> ClippedCandidates:
+    """Tell the white core of another colour's beam from light past full scale in the signal's colour.
+
+    A beam so bright that the other channels' crosstalk clips in its core clips its own channel
+    over a band wider on both sides: on the rendered red stripe 8 times past full scale, red
+    clips over 8-10 px of a row, green over the middle 1-3 (247, 173, 188 beside 255, 255, 251).
+    So a candidate on a clipped run of its colour's channel that lies strictly inside a clipped
+    run of another channel is that channel's light, and one whose run reaches beyond those of
+    all other channels clipped there is its own; runs that end alike (white light) are neither.
+    The runs are followed in the raw frame along the row and the column through the candidate's
+    pixel (``CORE_REACH_PX`` at most each way), across the beam: where the candidate's channel's
+    run is the shorter. Only the candidates flagged ``saturated`` are read (none in most
+    frames), and neither set holds one where the scene itself reaches the clip level
+    (:attr:`~scanrig.laser.image.LaserImage.seed_floor`): there a clipped pixel is the scene's.
+    Measured on the rendered stripes (1-8 x full scale, red and green lasers, with and without
+    the laser-off frame) and the Ciclop frames: no right colour's candidate is a core; green
+    asked of the red stripe at 8 x finds 269-270 cores among its 272 clipped candidates.
+
+    Parameters
+    ----------
+    li : LaserImage
+        The frame's signal in the candidates' colour (``li.colour`` set).
+    table : pyarrow.Table
+        Its detections (full-frame ``u``, ``v``; ``saturated``), ``n`` rows.
+
+    Returns
+    -------
+    ClippedCandidates
+    """
+    saturated = table["saturated"].to_numpy(zero_copy_only=False)
+    own, cores = np.zeros(saturated.size, bool), np.zeros(saturated.size, bool)
+    at = np.flatnonzero(saturated)
+    if at.size:
+        u0, v0 = li.origin
+        u = np.rint(table["u"].to_numpy()[at]).astype(np.int64) - u0
+        v = np.rint(table["v"].to_numpy()[at]).astype(np.int64) - v0
+        if li.seed_floor is not None:  # not where the scene reaches the clip level
+            keep = cell_lookup(li.seed_floor, BG_CELL, u, v) == 0
+            at, u, v = at[keep], u[keep], v[keep]
+        own[at], cores[at] = _on_clipped_runs(li.colour.image, li.colour.clip_level, u, v, li.colour.laser_channel)
+    return ClippedCandidates(own, cores)
+
+
+def _on_clipped_runs(image: np.ndarray, clip_level: np.ndarray, u: np.ndarray, v: np.ndarray,
+                     channel: int) -> tuple[np.ndarray, np.ndarray]:
+    """For the pixels ``u``, ``v`` ``(m,)`` of ``image`` ``(H, W, 3)`` whose ``channel`` is clipped
+    (at ``clip_level`` ``(3,)`` DN or above), across the beam: whether every other channel
+    clipped there has a run that ``channel``'s reaches beyond on both sides (own light), and
+    whether one reaches beyond ``channel``'s on both sides (a white core), ``(m,)`` bool each;
+    neither where the runs end alike (a glint of white light, a scene clipped in every channel).
+    The runs are read only where another channel is clipped at the pixel too (none on a right
+    colour's beam short of its white core)."""
+    on = _clipped_at(image, clip_level, u, v)  # (m, 3)
+    clipped = on[:, channel]
+    own, cores = clipped.copy(), np.zeros_like(clipped)
+    white = clipped & (np.count_nonzero(on, axis=1) > 1)
+    if white.any():
+        reach = _run_reach(image, clip_level, u[white], v[white])  # (w, axis, side, 3)
+        across = np.argmin(reach[..., channel].sum(axis=2), axis=1)  # the axis of the shorter run
+        sides = reach[np.arange(across.size), across]  # (w, side, 3)
+        mine = sides[:, :, [channel]]
+        others = on[white] & (np.arange(3) != channel)
+        cores[white] = (others & np.all(sides > mine, axis=1)).any(axis=1)
+        own[white] = ~(others & ~np.all(sides < mine, axis=1)).any(axis=1)
+    return own, cores
+
+
+def _clipped_at(image: np.ndarray, clip_level: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Whether each channel is clipped at the pixels ``u``, ``v`` (any shape ``S``), ``S + (3,)``
+    bool; False outside the frame."""
+    h, w = image.shape[:2]
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return (image[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)] >= clip_level) & inside[..., None]
+
+
+def _run_reach(image: np.ndarray, clip_level: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """How many pixels past ``u``, ``v`` ``(m,)`` each channel stays clipped without a break, up to
+    ``CORE_REACH_PX``, along the row (left, right) and the column (up, down): ``(m, 2, 2, 3)`` ints."""
+    steps = np.arange(1, CORE_REACH_PX + 1)
+    du = np.concatenate([-steps, steps, 0 * steps, 0 * steps])  # row left, right; column up, down
+    dv = np.concatenate([0 * steps, 0 * steps, -steps, steps])
+    clipped = _clipped_at(image, clip_level, u[:, None] + du, v[:, None] + dv).reshape(u.size, 2, 2, -1, 3)
+    # the first pixel not clipped (a sentinel after the last) is each run's reach
+    ends = np.concatenate([clipped, np.zeros_like(clipped[:, :, :, :1])], axis=3)
+    return np.argmin(ends, axis=3)
 
 
 def dips_more_than_rises(li, k_detect: float) -> bool:
