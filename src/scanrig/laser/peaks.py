@@ -174,13 +174,16 @@ def _window_sums(a: np.ndarray, i: np.ndarray, j: np.ndarray, radius: int) -> np
 
 
 def direction_map(rows_weight: np.ndarray, columns_weight: np.ndarray, tile_blocks: int = 9) -> np.ndarray:
-    """Per 4 × 4 block, whether the stripe there is best crossed by rows (True) or columns (False).
+    """Per 4 × 4 block, the share of the evidence that rows cross the stripe there steeply: it is
+    best crossed by rows where the share is at least ½, by columns where it is below.
 
     A stripe crossed at a steep angle has prominent maxima along the crossing lines; crossed
     lengthwise it has none (its profile along the line is flat). The summed prominence of the
     candidates found along rows and along columns, each summed over ``tile_blocks`` ×
     ``tile_blocks`` blocks, decides: a curved stripe gets rows where it is steep and columns where
-    it is flat. Blocks without candidates near them take the frame's overall direction.
+    it is flat, and a share near ½ where it runs at 45° to both, which cross it equally steeply
+    (:func:`~scanrig.laser.stripe_candidates.crossed_steeply`). Every candidate's own block has
+    evidence; blocks without candidates near them read 1.
 
     Parameters
     ----------
@@ -191,15 +194,17 @@ def direction_map(rows_weight: np.ndarray, columns_weight: np.ndarray, tile_bloc
 
     Returns
     -------
-    (hb, wb) bool array
+    (hb, wb) float64 array
+        Rows' share, 0 to 1 (at least ½ exactly where the rows' sum is at least the columns').
     """
     import cv2
 
     size = (tile_blocks, tile_blocks)
     along_rows = cv2.boxFilter(rows_weight, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     along_cols = cv2.boxFilter(columns_weight, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    overall = bool(rows_weight.sum() >= columns_weight.sum())
-    return np.where(along_rows + along_cols > 0, along_rows >= along_cols, overall)
+    # in float64 the share of two float32 sums is >= 1/2 exactly where along_rows >= along_cols
+    total = along_rows.astype(np.float64) + along_cols
+    return np.divide(along_rows, total, out=np.ones_like(total), where=total > 0)
 
 
 def find_candidates(li: LaserImage, along: str, excess: np.ndarray | None = None, k_seed: float = 4.5,

@@ -1,11 +1,12 @@
 """Laser stripes: on every scan line across the stripe, every peak above the noise, fitted in 1-D.
 
 The scan lines are the image rows where the stripe runs mostly vertically and the columns where it
-runs mostly horizontally, decided per 4 × 4 pixel block from the pre-scan's structure, so a stripe
-curving over a surface is crossed at a steep angle everywhere (or forced by ``direction``). On
-each line every local maximum that passes the detection test is a candidate, not only the
-brightest, so a secondary reflection never hides the true stripe; each is fitted with a
-pixel-integrated Gaussian along the line, vectorised over all (line, peak) pairs of the frame.
+runs mostly horizontally, decided per 4 × 4 pixel block from the pre-scan's structure and the
+candidates, and both where it runs at about 45° to them, so a stripe curving over a surface is
+crossed at a steep angle everywhere (or forced by ``direction``). On each line every local maximum
+that passes the detection test is a candidate, not only the brightest, so a secondary reflection
+never hides the true stripe; each is fitted with a pixel-integrated Gaussian along the line,
+vectorised over all (line, peak) pairs of the frame.
 
 The centre is the stripe's crossing with the scan line: for rows ``v`` is exactly the row index
 and only ``u`` is uncertain (``cov_vv = cov_uv = 0``), and vice versa for columns. On a tilted
@@ -176,9 +177,10 @@ def _crossings(li, excess, k_detect, min_separation_px, max_width_px) -> dict[st
              for along, blocks in zip(("rows", "columns"), worth_scanning(excess))}
     if min(c.line.size for c in found.values()) == 0:  # candidates along one direction only: the
         return found  # direction map gives every block to it, and all its candidates stay
-    by_rows = direction_map(found["rows"].block_weights(True, excess.shape),
-                            found["columns"].block_weights(False, excess.shape))
-    return {along: c.take(crossed_steeply(c, by_rows, along == "rows")) for along, c in found.items()}
+    row_share = direction_map(found["rows"].block_weights(True, excess.shape),
+                              found["columns"].block_weights(False, excess.shape))
+    return {along: c.take(crossed_steeply(c, row_share, along == "rows", max_width_px))
+            for along, c in found.items()}
 
 
 def _fit_along(li, along, cand: LineCandidates, max_width_px,
