@@ -11,9 +11,11 @@ factor changed: the laser's exposure, crosstalk, halo, storage, beam width, slop
 paper's level, the laser's colour and the density of print. Each condition runs without and with
 the laser-off frame, on the same seeds (the same dots and stripe positions). Per condition, pooled
 over the seeds and the rows 8 px or more from the frame's top and bottom: the share of rows whose
-rank-0 centre lies within 0.5 px of the truth (rows without one count as misses), the median error
-of the rank-0 centres, the robust (MAD) spread of error / reported sigma over the rows within 0.5 px,
-the share of rows without a rank-0 centre and the median CPU time of ``detect_stripe`` per frame.
+rank-0 centre lies within 0.5 px of the truth (a row's own rank 0, else the column-scanned one
+nearest it within half a row, :func:`rank0_by_row`; rows without one count as misses), the median
+error of the rank-0 centres, the robust (MAD) spread of error / reported sigma over the rows within
+0.5 px, the share of rows without a rank-0 centre and the median CPU time of ``detect_stripe`` per
+frame.
 """
 
 from __future__ import annotations
@@ -124,12 +126,15 @@ def conditions() -> list[Condition]:
 
 
 def rank0_by_row(table, truth: np.ndarray):
-    """Per row, the rank-0 centre's error along the row and its sigma, px (NaN where the row has none).
+    """Per row, the error along the row and the sigma of the rank-0 centre that stands for it, px
+    (NaN where none does).
 
-    The rank-0 centres that stand for a row are the one of its row scan and those of column scans
-    (where the stripe runs steeper than 45° to the rows) that lie on it; of these the nearest the
-    truth is taken. A column-scanned centre's error along the row is ``u`` less the true centre at
-    its ``v``, its sigma along the column times the stripe's slope (px of u per row).
+    A row is stood for by its own row scan's rank-0 centre if it has one, else by the column-scanned
+    rank-0 centre (where the stripe runs steeper than 45° to the rows, or at 45°, where both scan
+    directions keep it) nearest to it in ``v`` within half a row; the truth takes no part in the
+    choice. A column-scanned centre halfway between two rows may stand for both (a stripe centred on
+    a half pixel puts every column's centre there). Its error along the row is ``u`` less the true
+    centre at its ``v``, its sigma along the column times the stripe's slope (px of u per row).
 
     Parameters
     ----------
@@ -142,17 +147,23 @@ def rank0_by_row(table, truth: np.ndarray):
     -------
     error, sigma : (H,) float arrays, px
     """
-    u, v, line, rank, sigma = (table[k].to_numpy() for k in ("u", "v", "line", "rank", "sigma_px"))
+    u, v, rank, sigma, cov_vv = (table[k].to_numpy() for k in ("u", "v", "rank", "sigma_px", "cov_vv"))
     rows = np.arange(truth.size)
-    by_row = v == line
     best = rank == 0
-    row = np.where(by_row, line, np.clip(np.rint(v), 0, truth.size - 1).astype(int))[best]
-    error = (u - np.interp(v, rows, truth))[best]
-    sig = np.where(by_row, sigma, sigma * np.abs(np.interp(v, rows, np.gradient(truth))))[best]
-    order = np.lexsort((np.abs(error), row))
+    u, v, sigma = u[best], v[best], sigma[best]
+    by_column = cov_vv[best] != 0  # a column scan's uncertainty lies along v, a row scan's along u
+    error = u - np.interp(v, rows, truth)
+    sig = np.where(by_column, sigma * np.abs(np.interp(v, rows, np.gradient(truth))), sigma)
+    # each centre against the row below and above it in v: a row-scanned one's own row twice
+    row = np.concatenate([np.floor(v), np.ceil(v)]).astype(int)
+    who = np.tile(np.arange(v.size), 2)
+    gap = np.abs(v[who] - row)
+    use = (gap <= 0.5) & (row >= 0) & (row < truth.size)
+    row, who, gap = row[use], who[use], gap[use]
+    order = np.lexsort((who, gap, by_column[who], row))  # per row: its own scan first, then nearest in v
     first = order[np.unique(row[order], return_index=True)[1]]
     out_error, out_sigma = np.full(truth.size, np.nan), np.full(truth.size, np.nan)
-    out_error[row[first]], out_sigma[row[first]] = error[first], sig[first]
+    out_error[row[first]], out_sigma[row[first]] = error[who[first]], sig[who[first]]
     return out_error, out_sigma
 
 
