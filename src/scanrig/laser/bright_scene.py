@@ -10,7 +10,9 @@ of the frame, :func:`~scanrig.laser.image.prepare_image` warns (:func:`warn_if_b
 bright are unknown and read 0 (:func:`hide_clipped_scene`), unless a laser's core shows
 (:func:`show_cores`): with a laser-off frame, by its crosstalk raising both other channels; without
 one, by its width. Only such a core seeds a search there
-(:attr:`~scanrig.laser.image.LaserImage.seed_floor`).
+(:attr:`~scanrig.laser.image.LaserImage.seed_floor`, :func:`_seed_floor`): without a laser-off
+frame in every cell, with one in the cells whose scene reaches the clip level and around those
+whose pixels are mostly flagged as clipped.
 """
 
 from __future__ import annotations
@@ -127,14 +129,46 @@ def hide_clipped_scene(signal: np.ndarray, unknown: np.ndarray | None, at: np.nd
     near : (Hc, Wc) bool array
         The ``BG_CELL`` cells searched as the scene's.
     seed_floor : (Hc, Wc) float32 array, DN
-        Half of ``saturation_level`` in the cells ``near``, else 0
-        (:attr:`~scanrig.laser.image.LaserImage.seed_floor`).
+        :func:`_seed_floor` (:attr:`~scanrig.laser.image.LaserImage.seed_floor`).
     """
     scene_at, near = _clipped_scene(at, signal.shape[1], scene_clipped, dark, channel, saturation_level)
     np.put(signal, scene_at, 0.0)
     if unknown is not None:
         np.put(unknown, scene_at, False)
-    return scene_at, near, np.where(near, np.float32(0.5 * saturation_level), np.float32(0.0))
+    return scene_at, near, _seed_floor(at, signal.shape, scene_clipped, dark is not None, saturation_level)
+
+
+def _seed_floor(at: np.ndarray, shape: tuple[int, int], scene_clipped: np.ndarray, with_dark: bool,
+                saturation_level: float) -> np.ndarray:
+    """The level a pixel must reach to seed a search, per ``BG_CELL`` cell, where the scene reaches
+    the clip level: ``(Hc, Wc)`` float32, DN; half of ``saturation_level`` (only a laser's core, at
+    full scale, seeds there) or 0.
+
+    Without a laser-off frame the floor is in every cell: on paper near the clip level, within a
+    few pixels of its flagged pixels, the signal peaks up to about 45 DN, which take rank 0 where
+    the beam's core is hidden (on the rendered paper at 0.9 of full scale, floored only as below:
+    26 more rows of 1392 with a rank 0 over 3 px off). The laser-off frame, which holds them too,
+    takes them out (no more such rows); with it the floor is in the cells ``scene_clipped``
+    (``(Hc, Wc)`` bool, :func:`scene_reaches_clip`) and within two cells of those whose pixels are
+    mostly flagged as clipped (of ``at``, flat indices into ``shape`` ``(H, W)``;
+    :func:`_flagged_share`): where the paper itself clips, print bordering it seeds blobs along
+    the edge, and where only some cells of paper just below the clip level reach it (15-35 % at
+    0.9 of full scale) the print between them is far from it and the beam on it seeds as in a
+    normal frame (33-58 noise σ above it).
+    """
+    if not with_dark:
+        return np.full(scene_clipped.shape, np.float32(0.5 * saturation_level))
+    flagged = np.zeros(shape, bool)
+    np.put(flagged, at, True)
+    cells = scene_clipped | _around(_flagged_share(flagged) > 0.5)
+    return np.where(cells, np.float32(0.5 * saturation_level), np.float32(0.0))
+
+
+def _flagged_share(flagged: np.ndarray) -> np.ndarray:
+    """The share of the pixels ``flagged`` ``(H, W)`` (bool) per ``BG_CELL`` cell, from every
+    ``BG_STRIDE``-th pixel, 5 × 5 median over cells (which a stripe does not reach): ``(Hc, Wc)``
+    float32."""
+    return strided_cell_medians(flagged.view(np.uint8)[::BG_STRIDE, ::BG_STRIDE], flagged.shape)
 
 
 def _clipped_scene(at: np.ndarray, width: int, scene_clipped: np.ndarray, dark: np.ndarray | None,
@@ -236,7 +270,7 @@ def _wide_cores(saturated: np.ndarray, at: np.ndarray, scene_level: np.ndarray, 
 
     opened = cv2.morphologyEx(saturated.view(np.uint8), cv2.MORPH_OPEN,
                               np.ones((_CORE_WIDTH_PX, _CORE_WIDTH_PX), np.uint8)).view(bool)
-    share = strided_cell_medians(saturated.view(np.uint8)[::BG_STRIDE, ::BG_STRIDE], saturated.shape)
+    share = _flagged_share(saturated)
     highest_around = cv2.dilate(scene_level, np.ones((5, 5), np.uint8))
     v, u = np.divmod(at, saturated.shape[1])
     return (opened.ravel()[at] & (cell_lookup(share, BG_CELL, u, v) <= _NOISE_CLIPPED_SHARE)
