@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -18,10 +18,10 @@ from scanrig.errors import InputError
 from scanrig.geometry.transform import RigidTransform
 from scanrig.targets import patterns
 
-#: ArUco dictionaries accepted by name (OpenCV's ``cv2.aruco.DICT_*`` constants).
+#: Marker dictionaries accepted by name (OpenCV's ``cv2.aruco.DICT_*`` constants): ArUco and AprilTag.
 ARUCO_DICTIONARIES = tuple(
     f"DICT_{bits}X{bits}_{n}" for bits in (4, 5, 6, 7) for n in (50, 100, 250, 1000)
-) + ("DICT_ARUCO_ORIGINAL",)
+) + ("DICT_ARUCO_ORIGINAL",) + tuple(f"DICT_APRILTAG_{family}" for family in ("16h5", "25h9", "36h10", "36h11"))
 
 
 @dataclass(frozen=True)
@@ -118,6 +118,8 @@ class ChessBoard(Board):
     margin_m: float = 0.025
 
     kind = "chessboard"
+    #: As :attr:`CharucoBoard.top_left_black`: a chessboard has no other layout.
+    top_left_black = True
 
     def __post_init__(self):
         _check_grid(self.inner_corners, "inner_corners", minimum=2)
@@ -153,18 +155,24 @@ class CharucoBoard(Board):
     square_m, marker_m : float
         Square and marker side, metres (marker < square).
     dictionary : str
-        ArUco dictionary name, e.g. ``"DICT_5X5_1000"``.
+        Marker dictionary name (:data:`ARUCO_DICTIONARIES`), e.g. ``"DICT_5X5_1000"`` or
+        ``"DICT_APRILTAG_36h11"``.
     first_marker_id : int
         Marker ids are ``first_marker_id, first_marker_id + 1, ...`` in OpenCV's order, so several
         boards of one target use disjoint ids.
     margin_m : float
         White border, metres.
+    legacy : bool
+        The board follows OpenCV < 4.6's layout (``CharucoBoard.setLegacyPattern(True)``).
 
     Notes
     -----
-    The top-left square is black (OpenCV ≥ 4.6 layout, legacy pattern off). Point ``k`` is the
-    inner ChArUco corner in column ``k % (cols - 1)`` and row ``k // (cols - 1)``, OpenCV's
-    ChArUco corner id.
+    The top-left square is black (OpenCV ≥ 4.6 layout, legacy pattern off). The legacy layout
+    differs only with an even number of rows: its top-left square is white and carries marker 0,
+    every square has the other colour, and the markers sit in the other half of the squares (so
+    at other places); with an odd number of rows both layouts are the same print. Point ``k`` is
+    the inner ChArUco corner in column ``k % (cols - 1)`` and row ``k // (cols - 1)``, OpenCV's
+    ChArUco corner id, in both layouts.
     """
 
     squares: tuple[int, int] = (7, 7)
@@ -173,6 +181,7 @@ class CharucoBoard(Board):
     dictionary: str = "DICT_5X5_1000"
     first_marker_id: int = 0
     margin_m: float = 0.0
+    legacy: bool = False
 
     kind = "charuco"
 
@@ -188,6 +197,8 @@ class CharucoBoard(Board):
         if isinstance(self.first_marker_id, bool) or not isinstance(self.first_marker_id, (int, np.integer)) \
                 or self.first_marker_id < 0:
             raise InputError(f"first_marker_id must be a non-negative integer, got {self.first_marker_id!r}")
+        if not isinstance(self.legacy, bool):
+            raise InputError(f"legacy must be true or false, got {self.legacy!r}")
         capacity = _dictionary_size(self.dictionary)
         if self.first_marker_id + self.n_markers > capacity:
             raise InputError(
@@ -197,13 +208,28 @@ class CharucoBoard(Board):
 
     @property
     def n_markers(self) -> int:
-        """Number of ArUco markers (one per white square)."""
+        """Number of ArUco markers (one per white square; the same in both layouts)."""
         return (self.squares[0] * self.squares[1]) // 2
 
     @property
     def marker_ids(self) -> np.ndarray:
         """(n_markers,) ArUco ids in OpenCV's board order."""
         return np.arange(self.n_markers) + self.first_marker_id
+
+    @property
+    def layouts_differ(self) -> bool:
+        """Whether OpenCV's legacy and current layouts are different prints at this size (even rows)."""
+        return self.squares[1] % 2 == 0
+
+    @property
+    def top_left_black(self) -> bool:
+        """Whether the top-left square is black: false only for the legacy layout with even rows."""
+        return not (self.legacy and self.layouts_differ)
+
+    @functools.cached_property
+    def other_layout(self) -> CharucoBoard:
+        """The same board with ``legacy`` flipped (to tell the user which layout the images show)."""
+        return replace(self, legacy=not self.legacy)
 
     @property
     def size_m(self):
@@ -219,27 +245,65 @@ class CharucoBoard(Board):
         import cv2
 
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard(tuple(int(n) for n in self.squares), float(self.square_m),
-                                      float(self.marker_m), dictionary, self.marker_ids.astype(np.int32))
+        board = cv2.aruco.CharucoBoard(tuple(int(n) for n in self.squares), float(self.square_m),
+                                       float(self.marker_m), dictionary, self.marker_ids.astype(np.int32))
+        board.setLegacyPattern(self.legacy)
+        return board
+
+    @functools.cached_property
+    def marker_corners_board(self) -> np.ndarray:
+        """(n_markers, 4, 2) float32 corners of every marker in board coordinates (margin included),
+        metres, in :attr:`marker_ids` order and OpenCV's corner order (top-left first, clockwise);
+        float32 as OpenCV gives them."""
+        return np.array(self.cv_board().getObjPoints())[:, :, :2] + self.margin_m
 
     @functools.cached_property
     def marker_layout(self):
         """(top-left corners (n, 2) in board coordinates, bit images (n, c, c) with 1 = white)."""
         import cv2
 
-        board = self.cv_board()
-        corners = np.array([c[0, :2] for c in board.getObjPoints()]) + self.margin_m
-        dictionary = board.getDictionary()
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         n_cells = dictionary.markerSize + 2
         bits = np.stack([cv2.aruco.generateImageMarker(dictionary, int(i), n_cells, borderBits=1) // 255
-                         for i in board.getIds()])
-        return corners, bits.astype(np.float64)
+                         for i in self.marker_ids])
+        return self.marker_corners_board[:, 0], bits.astype(np.float64)
+
+    def as_top_left_black(self, xy_board) -> np.ndarray:
+        """Board coordinates in which this print's chessboard has its top-left square black.
+
+        A legacy-layout board (even rows) reflected top to bottom (y -> height - y) has the
+        current layout's square colours, so the code written for that layout (the reflectance of
+        :mod:`scanrig.targets.patterns`, the ChArUco corner refinement) serves it unchanged when
+        given these coordinates; its markers are reflected with them (:meth:`reflectance`).
+
+        Parameters
+        ----------
+        xy_board : array_like of shape (N, 2)
+            Board coordinates, metres.
+
+        Returns
+        -------
+        ndarray of shape (N, 2)
+            Metres; ``xy_board`` itself (as float array) when the top-left square is black.
+        """
+        xy = np.asarray(xy_board, dtype=np.float64)
+        if self.top_left_black:
+            return xy
+        return np.column_stack([xy[:, 0], self.size_m[1] - xy[:, 1]])
+
+    @functools.cached_property
+    def _markers_top_left_black(self):
+        """:attr:`marker_layout` in the coordinates of :meth:`as_top_left_black`."""
+        corners, bits = self.marker_layout
+        if self.top_left_black:
+            return corners, bits
+        bottom_left = self.marker_corners_board[:, 3]
+        return self.as_top_left_black(bottom_left), bits[:, ::-1, :]
 
     def reflectance(self, xy_board):
-        xy = np.asarray(xy_board, dtype=np.float64)
-        corners, bits = self.marker_layout
-        return patterns.charuco_reflectance(xy, self.squares, self.square_m, self.margin_m,
-                                            self.marker_m, corners, bits)
+        corners, bits = self._markers_top_left_black
+        return patterns.charuco_reflectance(self.as_top_left_black(xy_board), self.squares, self.square_m,
+                                            self.margin_m, self.marker_m, corners, bits)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ def board_shapes(board: Board, x0_mm: float = 0.0, y0_mm: float = 0.0) -> list[s
         raise TypeError(f"no print layout for {type(board).__name__}")
     cols, rows = board.squares
     i, j = np.meshgrid(np.arange(cols), np.arange(rows))
-    black = (i + j) % 2 == 0
+    black = (i + j) % 2 == (0 if board.top_left_black else 1)
     s = board.square_m * MM_PER_M
     m = board.margin_m * MM_PER_M
     rects = [(m + a * s, m + b * s, s, s) for a, b in zip(i[black], j[black])]

@@ -180,16 +180,18 @@ def chessboard(inner_corners=(9, 6), square_m=0.025, margin_m=None, flex=False) 
 
 
 def charuco(squares=(7, 5), square_m=0.04, marker_m=0.03, dictionary="DICT_5X5_1000",
-            first_marker_id=0, margin_m=None, flex=False) -> Target:
+            first_marker_id=0, margin_m=None, flex=False, legacy=False) -> Target:
     """A planar ChArUco target (OpenCV layout); ``margin_m`` defaults to half a square; ``flex``
-    see :class:`Target`."""
+    see :class:`Target`; ``legacy`` a board of OpenCV < 4.6's layout (:class:`CharucoBoard`)."""
     check_length(square_m, "square_m")
     margin = 0.5 * square_m if margin_m is None else margin_m
     squares = _pair(squares, "squares")
     board = CharucoBoard("board", squares=squares, square_m=square_m, marker_m=marker_m,
-                         dictionary=dictionary, first_marker_id=first_marker_id, margin_m=margin)
+                         dictionary=dictionary, first_marker_id=first_marker_id, margin_m=margin, legacy=legacy)
     spec = {"kind": "charuco", "squares": list(squares), "square_m": square_m, "marker_m": marker_m,
             "dictionary": dictionary, "first_marker_id": first_marker_id, "margin_m": margin}
+    if legacy:
+        spec["legacy"] = True               # a current-layout board's file stays as it was
     return Target("charuco", (board,), _flex_spec(spec, flex), flex)
 
 

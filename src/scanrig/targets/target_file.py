@@ -11,8 +11,9 @@ Examples of the file, one per kind (lengths in metres; optional fields in commen
     squares = [7, 5]
     square_m = 0.04
     marker_m = 0.03
-    dictionary = "DICT_5X5_1000"
+    dictionary = "DICT_5X5_1000"  # or an AprilTag family, e.g. "DICT_APRILTAG_36h11"
     # first_marker_id = 0, margin_m = 0.02
+    # legacy = true               # printed with OpenCV < 4.6's layout (differs with even rows)
     # flex = true                 # planar kinds only: the board bends, see below
 
     kind = "circles"              # or "circles_asym" (OpenCV's asymmetric grid)
@@ -46,7 +47,8 @@ from scanrig.targets.target import TARGET_KINDS, Target, charuco, chessboard, ci
 #: kind -> (constructor, required fields, optional fields); field names are the constructors' arguments.
 _KINDS = {
     "chessboard": (chessboard, ("inner_corners", "square_m"), ("margin_m", "flex")),
-    "charuco": (charuco, ("squares", "square_m", "marker_m", "dictionary"), ("first_marker_id", "margin_m", "flex")),
+    "charuco": (charuco, ("squares", "square_m", "marker_m", "dictionary"),
+                ("first_marker_id", "margin_m", "flex", "legacy")),
     "circles": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m", "flex")),
     "circles_asym": (circle_grid, ("grid", "spacing_m"), ("diameter_m", "margin_m", "flex")),
     "cube": (cube, ("edge_m", "squares", "square_m", "marker_m"), ("dictionary", "faces", "flex")),
@@ -80,6 +82,9 @@ def target_from_table(table: dict, path: Path) -> Target:
     kind = table["kind"]
     if not isinstance(kind, str) or kind not in _KINDS:
         raise FileFormatError(path, f"target: kind must be one of {list(TARGET_KINDS)}, got {kind!r}")
+    if "legacy" in table and kind != "charuco":
+        raise FileFormatError(path, f"target (kind = {kind!r}): legacy applies only to kind = 'charuco' "
+                                    "(a ChArUco board printed with OpenCV < 4.6's layout)")
     build, required, optional = _KINDS[kind]
     fields = {k: v for k, v in table.items() if k != "kind"}
     check_keys(fields, required + optional, required, path, f"target (kind = {kind!r})")
