@@ -85,3 +85,18 @@ def test_apriltag_board_round_trip(tmp_path):
     assert len(det.point_ids) >= 25            # of 35; some corners seen too steeply fail the fit
     truth = camera.project_cam(pose.apply(board.points_board[det.point_ids]))
     assert _rms(det.uv - truth) < 0.01
+
+
+def test_session_detection_names_the_image_of_the_other_layout(tmp_path):
+    """In a session the wrong-layout message names the image (``scanrig calibrate`` exits 2 with it)."""
+    from scanrig.calibration.pipeline import detect_session
+    from scanrig.errors import FileFormatError
+    from scanrig.io.session import Session, write_image
+
+    image, _ = _opencv_view(charuco((8, 6), 0.04, 0.03, legacy=True), seed=3)
+    path = tmp_path / "calibration" / "cam0" / "000.png"
+    path.parent.mkdir(parents=True)
+    write_image(path, image)
+    with pytest.raises(FileFormatError, match=r"000\.png: the ChArUco board's markers follow OpenCV < 4.6's legacy "
+                                              r"layout .*: set legacy = true in target.toml$"):
+        detect_session(Session(tmp_path), charuco((8, 6), 0.04, 0.03))

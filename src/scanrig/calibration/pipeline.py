@@ -242,9 +242,10 @@ def detect_session(session, target: Target, cameras: list[str] | None = None, pr
     Raises
     ------
     FileFormatError
-        An image whose size differs from the camera's other images, or an unreadable image.
+        An image whose size differs from the camera's other images, an unreadable image, or one
+        showing a ChArUco board of the other layout than declared (legacy or current).
     """
-    from scanrig.calibration.detect import detect_target
+    from scanrig.calibration.detect import BoardLayoutError, detect_target
     from scanrig.io.session import read_image
 
     cameras = cameras or session.camera_names(stage)
@@ -261,7 +262,10 @@ def detect_session(session, target: Target, cameras: list[str] | None = None, pr
         elif size != sizes[cam]:
             raise FileFormatError(path, f"image is {size[0]}x{size[1]} but {first[cam].name} of camera "
                                         f"{cam!r} is {sizes[cam][0]}x{sizes[cam][1]}; one camera, one image size")
-        det = detect_target(img, target)
+        try:
+            det = detect_target(img, target)
+        except BoardLayoutError as exc:
+            raise FileFormatError(path, str(exc)) from None
         if len(det.point_ids):
             parts.append((cam, stem, det.point_ids, det.uv, det.weight))
         else:
