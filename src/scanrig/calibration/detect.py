@@ -37,7 +37,7 @@ import numpy as np
 
 from scanrig.errors import InputError
 from scanrig.targets import Target
-from scanrig.targets.boards import CharucoBoard, ChessBoard, CircleGridBoard
+from scanrig.targets.boards import CharucoBoard, ChessBoard, CircleGridBoard, cv_dictionary
 
 #: Markers of a board needed in a view to judge its layout (:func:`check_layout`).
 LAYOUT_MIN_MARKERS = 4
@@ -194,7 +194,7 @@ def _detect_charuco_print(grey: np.ndarray, boards, refine: bool) -> Detection:
     """ChArUco corners of every board in a grey image of a black-on-white print."""
     import cv2
 
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, boards[0].dictionary))
+    dictionary = cv_dictionary(boards[0].dictionary)
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     marker_corners, marker_ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(grey)

@@ -107,7 +107,7 @@ def warn_if_bright(scene_clipped: np.ndarray, color: str, saturation_level: floa
     return bright
 
 
-def hide_clipped_scene(signal: np.ndarray, unknown: np.ndarray | None, at: np.ndarray,
+def hide_clipped_scene(signal: np.ndarray, unknown: np.ndarray | None, saturated: np.ndarray, at: np.ndarray,
                        scene_clipped: np.ndarray, dark: np.ndarray | None, channel: int,
                        saturation_level: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read 0 in ``signal`` the clipped pixels where the scene itself reaches the clip level, in
@@ -119,6 +119,8 @@ def hide_clipped_scene(signal: np.ndarray, unknown: np.ndarray | None, at: np.nd
         The laser signal, its clipped pixels at full scale.
     unknown : (H, W) bool array or None
         Pixels clipped in the laser-off frame too.
+    saturated : (H, W) bool array
+        The clipped pixels (``at`` their flat indices).
     at, scene_clipped, dark, channel, saturation_level
         As :func:`_clipped_scene`.
 
@@ -135,10 +137,10 @@ def hide_clipped_scene(signal: np.ndarray, unknown: np.ndarray | None, at: np.nd
     np.put(signal, scene_at, 0.0)
     if unknown is not None:
         np.put(unknown, scene_at, False)
-    return scene_at, near, _seed_floor(at, signal.shape, scene_clipped, dark is not None, saturation_level)
+    return scene_at, near, _seed_floor(saturated, scene_clipped, dark is not None, saturation_level)
 
 
-def _seed_floor(at: np.ndarray, shape: tuple[int, int], scene_clipped: np.ndarray, with_dark: bool,
+def _seed_floor(saturated: np.ndarray, scene_clipped: np.ndarray, with_dark: bool,
                 saturation_level: float) -> np.ndarray:
     """The level a pixel must reach to seed a search, per ``BG_CELL`` cell, where the scene reaches
     the clip level: ``(Hc, Wc)`` float32, DN; half of ``saturation_level`` (only a laser's core, at
@@ -150,17 +152,14 @@ def _seed_floor(at: np.ndarray, shape: tuple[int, int], scene_clipped: np.ndarra
     26 more rows of 1392 with a rank 0 over 3 px off). The laser-off frame, which holds them too,
     takes them out (no more such rows); with it the floor is in the cells ``scene_clipped``
     (``(Hc, Wc)`` bool, :func:`scene_reaches_clip`) and within two cells of those whose pixels are
-    mostly flagged as clipped (of ``at``, flat indices into ``shape`` ``(H, W)``;
-    :func:`_flagged_share`): where the paper itself clips, print bordering it seeds blobs along
+    mostly flagged as clipped (``saturated``, ``(H, W)`` bool; :func:`_flagged_share`): where the paper itself clips, print bordering it seeds blobs along
     the edge, and where only some cells of paper just below the clip level reach it (15-35 % at
     0.9 of full scale) the print between them is far from it and the beam on it seeds as in a
     normal frame (33-58 noise σ above it).
     """
     if not with_dark:
         return np.full(scene_clipped.shape, np.float32(0.5 * saturation_level))
-    flagged = np.zeros(shape, bool)
-    np.put(flagged, at, True)
-    cells = scene_clipped | _around(_flagged_share(flagged) > 0.5)
+    cells = scene_clipped | _around(_flagged_share(saturated) > 0.5)
     return np.where(cells, np.float32(0.5 * saturation_level), np.float32(0.0))
 
 

@@ -256,7 +256,7 @@ def prepare_image(
             at = np.flatnonzero(saturated)
             unknown = _clipped_to_full_scale(signal, at, dark, color, clip_levels, saturation_level)
             if bright and colour is not None:  # 0 until a laser's core shows (below)
-                scene_at, near, seed_floor = hide_clipped_scene(signal, unknown, at, scene_clipped, dark,
+                scene_at, near, seed_floor = hide_clipped_scene(signal, unknown, saturated, at, scene_clipped, dark,
                                                                 colour.laser_channel, saturation_level)
     model = None
     if noise_sigma is None:

@@ -20,7 +20,8 @@ import functools
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -291,26 +292,29 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     # The session compares the colours once per camera (colour_mismatches), naming the camera:
     # the library's check of every frame is not needed here.
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", BrightSceneWarning)
+    with _bright_scene_caught() as messages:
         table = detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
                        saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame,
                        check_color=False, **scan)
-    for message in _bright_scene_messages(caught):
+    for message in messages:
         warnings.warn(BrightSceneWarning(f"camera {camera!r} frame {frame!r}: {message}"), stacklevel=2)
     return table
 
 
-def _bright_scene_messages(caught: list[warnings.WarningMessage]) -> list[str]:
-    """The messages of the :class:`~scanrig.laser.bright_scene.BrightSceneWarning` among the warnings
-    ``caught``; the others are issued again."""
-    messages = []
+@contextmanager
+def _bright_scene_caught() -> Iterator[list[str]]:
+    """Catch the :class:`~scanrig.laser.bright_scene.BrightSceneWarning` issued within the block
+    (each one, also a text shown before); the yielded list holds their messages once the block has
+    run to its end, and the other warnings caught are issued again then."""
+    messages: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", BrightSceneWarning)
+        yield messages
     for w in caught:
         if issubclass(w.category, BrightSceneWarning):
             messages.append(str(w.message))
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return messages
 
 
 @dataclass
@@ -329,8 +333,7 @@ def _run_job(job: _Job):
     try:
         dark = job.dark_image if job.dark_path is None else read_image(job.dark_path)
         out = []
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", BrightSceneWarning)
+        with _bright_scene_caught() as messages:
             for stem, path in job.frames:
                 img = read_image(path)
                 if img.shape != job.shape or str(img.dtype) != job.dtype:
@@ -341,7 +344,7 @@ def _run_job(job: _Job):
         return (str(exc.path), exc.reason)
     except InputError as exc:
         return (path, str(exc))
-    return _JobResult(pa.concat_tables(out) if out else empty_table(), _bright_scene_messages(caught))
+    return _JobResult(pa.concat_tables(out) if out else empty_table(), messages)
 
 
 def _write(session: Session, cameras: list[str], tables: list[pa.Table], finished, options) -> pa.Table:
@@ -407,15 +410,12 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         light_with = functools.cache(functools.partial(_frame_light, image,
                                                        None if dark_path is None else read_image(dark_path), options))
         # the frames' own BrightSceneWarning was issued by the detection: none again here
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", BrightSceneWarning)
+        with _bright_scene_caught() as messages:
             light_with(options.color)
-        if _bright_scene_messages(caught):  # the requested colour finds little whatever the laser's:
+        if messages:  # the requested colour finds little whatever the laser's:
             continue  # another colour's white cores are no evidence
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", BrightSceneWarning)
+        with _bright_scene_caught():
             best = colour_shown(image, options.color, light_with, least=0.0)
-        _bright_scene_messages(caught)
         if best is None:
             continue
         what = (f"no {options.color} laser in {paths[stem]}" if light_with(options.color) == 0 else

@@ -244,9 +244,9 @@ class CharucoBoard(Board):
         """The equivalent ``cv2.aruco.CharucoBoard`` (board units metres, no margin)."""
         import cv2
 
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         board = cv2.aruco.CharucoBoard(tuple(int(n) for n in self.squares), float(self.square_m),
-                                       float(self.marker_m), dictionary, self.marker_ids.astype(np.int32))
+                                       float(self.marker_m), cv_dictionary(self.dictionary),
+                                       self.marker_ids.astype(np.int32))
         board.setLegacyPattern(self.legacy)
         return board
 
@@ -262,7 +262,7 @@ class CharucoBoard(Board):
         """(top-left corners (n, 2) in board coordinates, bit images (n, c, c) with 1 = white)."""
         import cv2
 
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        dictionary = cv_dictionary(self.dictionary)
         n_cells = dictionary.markerSize + 2
         bits = np.stack([cv2.aruco.generateImageMarker(dictionary, int(i), n_cells, borderBits=1) // 255
                          for i in self.marker_ids])
@@ -378,10 +378,15 @@ def _grid_points(counts: tuple[int, int], step_m: float, start_m: float) -> np.n
     return np.column_stack([j, i]).astype(np.float64) * step_m + start_m
 
 
-def _dictionary_size(name: str) -> int:
+def cv_dictionary(name: str):
+    """OpenCV's predefined marker dictionary ``name`` (one of :data:`ARUCO_DICTIONARIES`)."""
     import cv2
 
-    return int(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList.shape[0])
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+def _dictionary_size(name: str) -> int:
+    return int(cv_dictionary(name).bytesList.shape[0])
 
 
 def _check_grid(value, name: str, minimum: int) -> None:
