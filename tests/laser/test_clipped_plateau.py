@@ -5,7 +5,8 @@ import pytest
 
 import scanrig
 from scanrig.laser import colour_fit
-from scanrig.laser.colour_fit import plateau_midpoint
+from scanrig.laser.colour_fit import edge_step_px, plateau_midpoint
+from scanrig.sim.colour import bayer_demosaic
 from tests.laser.colour_synth import stripe_frames
 
 #: Laser channel background and clip, DN, and the noise of every channel, DN.
@@ -34,21 +35,48 @@ def plateau_frame(seed, half_width_px=3.2, amplitude_dn=2000.0, crosstalk=0.0, r
     return np.clip(np.round(img), 0, 255).astype(np.uint8), centre
 
 
-def test_a_sharp_plateau_without_crosstalk_is_centred_within_its_sigma():
-    """Five frames of 200 rows: the edges' sub-pixel positions sweep the pixel grid; the rank-0
-    centres lie within ``Z_MAX`` σ of the truth (but for the chi-square test's rare false alarm on
-    a flat channel) and error / σ spreads like a unit normal."""
+def plateau_errors(demosaiced: bool) -> np.ndarray:
+    """error / σ of the rank-0 centres of five plateau frames of 200 rows (the edges' sub-pixel
+    positions sweep the pixel grid), each through an RGGB mosaic and OpenCV's bilinear demosaicing
+    when ``demosaiced``."""
     z = []
     for seed in range(5):
         img, truth = plateau_frame(seed)
+        img = bayer_demosaic(img) if demosaiced else img
         t = scanrig.detect_stripe(img, color="red")
         u, line, rank, sigma, clipped = (t[k].to_numpy() for k in ("u", "line", "rank", "sigma_px", "saturated"))
         best = rank == 0
-        assert best.sum() >= img.shape[0] - 2 and clipped[best].all()  # the frame's border rows may lack one
+        # the frame's border rows may lack one
+        assert best.sum() >= img.shape[0] - 2 and clipped[best].all()
         z.append((u[best] - truth[line[best]]) / sigma[best])
-    z = np.concatenate(z)
+    return np.concatenate(z)
+
+
+def test_a_sharp_plateau_without_crosstalk_is_centred_within_its_sigma():
+    """The rank-0 centres lie within ``Z_MAX`` σ of the truth (but for the chi-square test's rare
+    false alarm on a flat channel) and error / σ spreads like a unit normal."""
+    z = plateau_errors(demosaiced=False)
     assert np.mean(np.abs(z) <= Z_MAX) >= 0.995
     assert Z_SPREAD[0] <= 1.4826 * np.median(np.abs(z)) <= Z_SPREAD[1]
+
+
+def test_a_demosaiced_plateau_is_known_to_its_photosites():
+    """Through a Bayer mosaic the runs end on the red photosites' grid (parity 13 σ from a fair
+    coin), so each edge is known to 2 px: error 0.30 px RMS against σ 0.41 px (spread 0.89; 1.73
+    with σ for a pixel per edge)."""
+    z = plateau_errors(demosaiced=True)
+    assert Z_SPREAD[0] <= 1.4826 * np.median(np.abs(z)) <= Z_SPREAD[1]
+
+
+def test_the_edge_step_follows_the_parity_of_the_runs_ends():
+    """A fair coin's ends (or too few to tell) are known to a pixel; ends on one parity beyond
+    ``_PARITY_SIGMAS`` to a photosite period."""
+    rng = np.random.default_rng(7)
+    fair = rng.integers(0, 1000, 800)
+    assert edge_step_px([fair, fair + 1]) == 1.0
+    assert edge_step_px([np.array([2, 4, 6]), np.array([9, 11, 13])]) == 1.0
+    assert edge_step_px([fair, 2 * fair]) == 2.0
+    assert edge_step_px([np.zeros(0, int), np.zeros(0, int)]) == 1.0
 
 
 def unit_case(inner_share=None, outer_share=None, crosstalk_dn=0.0):

@@ -36,6 +36,7 @@ import numpy as np
 
 from scanrig.laser.fit import (MIN_PEAK_DN, MIN_WIDTH_PX, FitResult, centre_misfit, fit_batch, integrated_profile,
                                lever_misfit, misfits, pixel_edges, profile_terms)
+from scanrig.laser.clipped_runs import BAYER_PERIOD_PX
 from scanrig.laser.colour_frames import ColourFrames
 from scanrig.laser.pixels import pixel_blocks
 from scanrig.laser.reflectance import PARAMS as STEP_PARAMS
@@ -67,8 +68,13 @@ _STEP_TRIGGER = 3.0
 _STEP_ITERATIONS = 8
 #: The step model starts from the best of the start widths up to this, px (the beam's, not a band's).
 _BEAM_START_MAX_PX = 2.0
-#: Variance of a position known only to lie within one pixel (uniform): 1/12 px².
-_QUANTISATION_VAR = 1.0 / 12.0
+#: A frame's clipped runs start (or end) on one parity of pixel more often than a fair coin allows
+#: at this many σ (binomial, over the runs with steep edges of one call): the laser channel was
+#: demosaiced from photosites ``BAYER_PERIOD_PX`` apart, so each edge is known to that step, not to
+#: a pixel. On the Ciclop board's ``-x`` frame (red clipping at 180 DN) the 710 runs with steep edges
+#: start on even columns, and 709 of them end on odd ones (27 σ); on a plateau rendered through an
+#: RGGB mosaic 13 σ; without a mosaic 0.1-1.2 σ.
+_PARITY_SIGMAS = 4.0
 #: A spot's pixels in one block of this many pixels square (on the frame's grid) are taken as having
 #: correlated errors (:func:`~scanrig.laser.fit.centre_misfit`'s ``clusters``): bilinear demosaicing
 #: and 4:2:0 chroma upsampling spread each sample over up to 4 pixels. On the rendered colour spots
@@ -116,7 +122,7 @@ def fit_clipped(colour: ColourFrames, rows: bool, line: np.ndarray, pos: np.ndar
     raw = frame[..., laser]
     # a pixel at 0 DN is censored at the black level (its value unknown below it): out of the test
     plateau = plateau_midpoint(raw, np.delete(y, laser, axis=2), np.delete(usable & (frame > 0), laser, axis=2),
-                               np.delete(noise, laser), noise[laser], colour.clip_level[laser])
+                               np.delete(noise, laser), noise[laser], colour.clip_level[laser], pos - half)
     p0 = _plain_start(y, usable, noise, laser, trial, 1)
     # the run's middle from its two edges is a closer start than its middle pixel (where it has both):
     # on the rendered 1080p frame 0.15 px from the fitted centre instead of 0.43 (medians), and 9 %
@@ -201,7 +207,7 @@ def _below_clip(p: np.ndarray, y: np.ndarray, raw: np.ndarray, clip: float, leve
 
 
 def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndarray, others_noise: np.ndarray,
-                     noise: float, clip: float) -> dict[str, np.ndarray]:
+                     noise: float, clip: float, origin: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Centres of clipped runs from their two edges, where the colour model has nothing to go on.
 
     The laser channel's background ``B`` is the median of the window's unclipped pixels, and the
@@ -209,7 +215,9 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     ``T = (B + clip) / 2`` (clipped pixels count at ``clip``). Each edge lies where the channel crosses
     ``T``, linearly interpolated between the run's last pixel and the one beyond; the centre is the
     midpoint of the two edges. An edge's variance propagates the noise of its unclipped pixel(s)
-    through the interpolation, plus ``1/12 px²``: the edge is known only to its pixel step. A partial
+    through the interpolation, plus ``q² / 12`` for an edge known only to a step of ``q`` px: a
+    pixel, or ``BAYER_PERIOD_PX`` where the runs' first or last pixels keep to one parity of the
+    frame's grid (:func:`edge_step_px`: the laser channel was demosaiced from its photosites). A partial
     pixel at the edge, clipped or not, is lit by an unknown share of a beam whose level over the run
     is unknown (at least the clip), and where a camera's sharpening, demosaicing or black clip shapes
     the step, the two pixels' values do not place the edge within it (on the Ciclop board, whose
@@ -235,6 +243,9 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
         Their noise σ, DN.
     noise, clip : float
         The laser channel's noise σ and clip level, DN.
+    origin : (n,) int array, optional
+        Position in the frame, along the line, of each window's first pixel (for the parity of the
+        runs' ends); without it each edge is known to a pixel.
 
     Returns
     -------
@@ -261,7 +272,7 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     left = np.cumprod(bright[:, half::-1], axis=1).sum(axis=1)
     steep = (half + right < w) & (half - left >= 0) & np.isfinite(background)
     pick = np.arange(n)
-    edges, var = [], np.zeros(n)
+    edges, var, ends = [], np.zeros(n), []
     for inner, sign in ((half + right - 1, 1), (half - left + 1, -1)):  # the two edges, not data
         outer = np.clip(inner + sign, 0, w - 1)
         inner = np.clip(inner, 0, w - 1)
@@ -270,8 +281,11 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
         steep &= rise >= _STEEP_SHARE * (clip - background)
         rise = np.where(rise > 0, rise, 1.0)
         edges.append(inner - half + sign * (vi - level) / rise)
+        ends.append(inner)
         lit_inner = unclipped[pick, inner]
-        var += noise**2 * ((level - vo) ** 2 * lit_inner + (vi - level) ** 2) / rise**4 + _QUANTISATION_VAR
+        var += noise**2 * ((level - vo) ** 2 * lit_inner + (vi - level) ** 2) / rise**4
+    step_px = 1.0 if origin is None else edge_step_px([(origin + end)[steep] for end in ends])
+    var += 2.0 * step_px**2 / 12.0
     # the other channels over the run: flat within their noise, or a crosstalk profile
     offs = np.arange(w) - half
     run = (offs[None, :] < right[:, None]) & (offs[None, :] > -left[:, None])  # (n, W)
@@ -285,6 +299,17 @@ def plateau_midpoint(raw: np.ndarray, others: np.ndarray, others_usable: np.ndar
     applies = steep & ~profile.any(axis=1)
     return {"centre": 0.5 * (edges[0] + edges[1]), "var": 0.25 * var, "half_length": 0.5 * (edges[0] - edges[1]),
             "rise": clip - background, "level": level, "applies": applies}
+
+
+def edge_step_px(ends: list[np.ndarray]) -> float:
+    """The step to which a frame's clipped runs' edges are known, px: ``BAYER_PERIOD_PX`` where the
+    runs' last pixels at one end, ``ends`` (one ``(m,)`` int array of frame positions per end), keep
+    to one parity more than ``_PARITY_SIGMAS`` allow for a fair coin (a demosaiced channel's runs
+    end on its photosites' grid), else 1."""
+    for end in ends:
+        if end.size and abs(2 * np.count_nonzero(end % 2) - end.size) > _PARITY_SIGMAS * np.sqrt(end.size):
+            return BAYER_PERIOD_PX
+    return 1.0
 
 
 def fit_clipped_spots(colour: ColourFrames, u: np.ndarray, v: np.ndarray, half: int,
