@@ -107,24 +107,25 @@ def test_stripes_scanned_along_rows_only_when_asked(stripe_session, capsys):
 def test_resume_of_a_file_from_before_the_later_options_takes_their_defaults(session):
     first = detect_session(session)
     options = DetectOptions("spot", "red").as_dict()
-    del options["direction"], options["dark"], options["saturation_level"]
+    del options["direction"], options["dark"]
     write_traces(session / "traces.parquet", first, {"options": options,
                                                      "frames_done": [[c, f"f{k}"] for c in CAMERAS for k in range(N_FRAMES)]})
     assert detect_session(session, resume=True).equals(first)
 
 
-def test_resume_of_16_bit_frames_clipped_at_full_scale_is_refused(tmp_path):
-    """A file from before ``saturation_level`` clipped 16-bit frames at 65535; the frames left are
-    now clipped at the level found from them: one file would mix both."""
-    _clipped_stripe_session(tmp_path, np.uint16, 16)
+@pytest.mark.parametrize("dtype, scale", [(np.uint8, 1), (np.uint16, 16)], ids=["8-bit", "16-bit"])
+def test_resume_of_a_file_clipped_at_full_scale_is_refused(tmp_path, dtype, scale):
+    """A file from before ``saturation_level`` clipped every frame at its dtype's maximum; the frames
+    left are now clipped at the level found from them: one file would mix both."""
+    _clipped_stripe_session(tmp_path, dtype, scale)
     write_image(tmp_path / "scan" / "cam0" / "f1.png", read_image(tmp_path / "scan" / "cam0" / "f0.png"))
     options = DetectOptions("stripe").as_dict()
     del options["saturation_level"]
     first = detect_session(tmp_path)
     write_traces(tmp_path / "traces.parquet", first.filter(pa.compute.equal(first["frame"], "f0")),
                  {"options": options, "frames_done": [["cam0", "f0"]]})
-    with pytest.raises(FileFormatError, match=r"traces.parquet: was made when 16-bit frames were clipped at 65535, "
-                                              r"not at the level found from the frames; run without --resume"):
+    with pytest.raises(FileFormatError, match=r"traces.parquet: was made with options .*'saturation_level': None}, "
+                                              r"not .*'saturation_level': 'auto'}; run without --resume"):
         detect_session(tmp_path, resume=True)
 
 
@@ -250,30 +251,31 @@ def test_saturation_level_from_session_toml(session, capsys):
 
 
 def _clipped_stripe_session(root, dtype, scale):
-    """Grey frames of a stripe clipped at 255 DN (a flat top 5-6 px wide), values times ``scale``."""
+    """Grey frames of a stripe clipped at 255 DN (a flat top 5-6 px wide), values times ``scale``
+    (rounded)."""
     rng = np.random.default_rng(503)
     folder = root / "scan" / "cam0"
     folder.mkdir(parents=True)
-    frame = stripe_image((60, 80), _stripe_centre, rng, amplitude=900.0, sigma=2.0, noise=2.0)
-    write_image(folder / "f0.png", frame.astype(dtype) * scale)
+    frame = np.round(stripe_image((60, 80), _stripe_centre, rng, amplitude=900.0, sigma=2.0, noise=2.0) * float(scale))
+    write_image(folder / "f0.png", frame.astype(dtype))
     (root / "session.toml").write_text('laser_mode = "stripe"\n')
-    return frame.astype(dtype) * scale
+    return frame.astype(dtype)
 
 
-@pytest.mark.parametrize("dtype, scale, default", [(np.uint8, 1, None), (np.uint16, 16, "auto")],
-                         ids=["8-bit: the dtype's maximum", "16-bit: found from the data"])
-def test_the_default_clip_level_of_16_bit_frames_is_found_from_the_data(tmp_path, dtype, scale, default):
-    """12-bit data in a 16-bit file clip at 4080, which only the found level knows: there the
-    default differs from the dtype's maximum (the clipped top left out of the fit), and is it."""
+@pytest.mark.parametrize("dtype, scale", [(np.uint8, 235 / 255), (np.uint16, 16)],
+                         ids=["8-bit clipped at 235", "16-bit: 12-bit data"])
+def test_the_default_clip_level_is_found_from_the_data(tmp_path, dtype, scale):
+    """A camera whose data clip below the dtype's maximum (a colour channel's white balance gain
+    below 1; 12-bit data in a 16-bit file, clipped at 4080): only the found level knows the clipped
+    top, which the session's default leaves out of the fit, unlike the detector's own default."""
     from scanrig import detect_stripe
 
     frame = _clipped_stripe_session(tmp_path, dtype, scale)
     table = detect_session(tmp_path)
-    assert table.drop_columns(["camera", "frame"]).equals(detect_stripe(frame, saturation_level=default)
+    assert table.drop_columns(["camera", "frame"]).equals(detect_stripe(frame, saturation_level="auto")
                                                          .drop_columns(["camera", "frame"]))
     assert table["saturated"].to_numpy().any()
-    if default == "auto":
-        assert not detect_stripe(frame)["saturated"].to_numpy().any()
+    assert not detect_stripe(frame)["saturated"].to_numpy().any()
 
 
 @pytest.mark.parametrize("frames, laser", [(lambda f: f, "red"), (lambda f: np.ascontiguousarray(f[:, :, ::-1]), "blue")],

@@ -382,6 +382,14 @@ def _sixteen(rgb):
     return rgb.astype(np.uint16) * 257
 
 
+def _red_gain(rgb):
+    """Red times 235/255, rounded: a white balance gain below 1 applied after the sensor clipped, so
+    that red clips at 235 DN."""
+    out = rgb.copy()
+    out[:, :, 0] = np.round(rgb[:, :, 0] * (235.0 / 255.0))
+    return out
+
+
 #: name -> (change of the frames, file suffix, geometric change of the reference, stripe along
 #: rows, scale, margin). Measured shares: all 0.9942 (the library's with its laser-off frame)
 #: but JPEG q80 0.9864, the half-scale frame 0.9961, and grey (below).
@@ -396,6 +404,7 @@ SESSIONS = {
     "RGBA PNG": (_rgba, ".png", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
     "BMP": (lambda a: a, ".bmp", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
     "16-bit PPM": (_sixteen, ".ppm", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
+    "red clipped at 235": (_red_gain, ".png", lambda a: a, False, 1.0, GEOMETRIC_MARGIN),
 }
 
 

@@ -31,8 +31,9 @@ def command(
              "median of its scan frames (median: a laser swept over a fixed scene).")] = "file",
     saturation_level: Annotated[str | None, typer.Option(
         metavar="DN|auto",
-        help="Level at which pixels clip, DN, or auto: each channel's found from the frames (default: auto "
-             "for 16-bit frames, whose 10- to 14-bit data clip below 65535; 255 for 8-bit ones).")] = None,
+        help="Level at which pixels clip, DN, or auto (the default, or saturation_level in session.toml): each "
+             "channel's found from the frames. 16-bit files often hold 10- to 14-bit data, which clip below "
+             "65535, and a colour camera's white balance can clip a channel below 255.")] = None,
 ):
     """Detect laser spots or stripes in every scan frame, with sub-pixel centres and their sigma.
 

@@ -7,7 +7,8 @@ and result tables cross process boundaries). ``traces.parquet`` is rewritten ato
 its metadata; ``resume=True`` skips those, including frames that had no candidate.
 
 Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
-equal is detected as grey, 16-bit frames are clipped where their data clip (found from them), and
+equal is detected as grey, each channel is clipped where its data clip (found from the frames unless
+``saturation_level`` says), and
 :func:`colour_mismatches` names the cameras whose frames show a laser of another colour. A frame
 whose scene itself reaches the clip level (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`) is
 named in that warning, issued again in the calling process whichever worker detected it.
@@ -43,9 +44,9 @@ MODES = ("spot", "stripe")
 #: Where a camera's laser-off frame comes from: its ``scan/<camera>/dark.<ext>`` only ("file"), or,
 #: where it has none, the median of its scan frames ("median", :mod:`scanrig.laser.median_dark`).
 DARK_SOURCES = ("file", "median")
-#: Options added after ``traces.parquet`` files were first written: such files used their defaults
-#: (but 16-bit frames were clipped at 65535 before ``saturation_level``, not found from the data).
-_LATER_OPTIONS = ("direction", "dark", "saturation_level")
+#: Options added after ``traces.parquet`` files were first written, and the values such files were
+#: made with: before ``saturation_level`` every frame was clipped at its dtype's maximum (None).
+_LATER_OPTIONS = {"direction": "auto", "dark": "file", "saturation_level": None}
 #: A camera's frame shows a laser of another colour (:func:`colour_mismatches`) only where that
 #: colour has a rank-0 stripe candidate on at least this many scan lines (spots: one candidate).
 _LEAST_STRIPE_LINES = 20
@@ -72,10 +73,11 @@ class DetectOptions:
     dark : {"file", "median"}
         "median": a camera without ``scan/<camera>/dark.<ext>`` takes the per-pixel median of its
         scan frames as its laser-off frame (a laser swept over a fixed scene, not a moving object).
-    saturation_level : float, "auto" or None
+    saturation_level : float or "auto"
         DN at which pixels clip, or "auto": each channel's level found from the frames
-        (:func:`~scanrig.laser.clip_level.channel_clip_levels`). None: "auto" for 16-bit frames (a
-        10-, 12- or 14-bit camera's data clip below 65535), the dtype's maximum for 8-bit ones.
+        (:func:`~scanrig.laser.clip_level.channel_clip_levels`): a 16-bit file often holds a 10-, 12-
+        or 14-bit camera's data, which clip below 65535, and a colour camera's white balance scales
+        a channel after the sensor clips, so a channel with a gain below 1 clips below 255.
     """
 
     mode: str = "spot"
@@ -84,7 +86,7 @@ class DetectOptions:
     k_detect: float = 6.0
     direction: str = "auto"
     dark: str = "file"
-    saturation_level: float | str | None = None
+    saturation_level: float | str = "auto"
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -100,7 +102,7 @@ class DetectOptions:
         if self.dark not in DARK_SOURCES:
             raise InputError(f"dark must be one of {DARK_SOURCES}, got {self.dark!r}")
         level = self.saturation_level
-        if not (level is None or level == "auto" or (isinstance(level, (int, float)) and not isinstance(level, bool)
+        if not (level == "auto" or (isinstance(level, (int, float)) and not isinstance(level, bool)
                                                      and math.isfinite(level) and level > 0)):
             raise InputError(f"saturation_level must be a positive number of DN or 'auto', got {level!r}")
 
@@ -109,11 +111,6 @@ class DetectOptions:
                 "k_detect": self.k_detect, "direction": self.direction, "dark": self.dark,
                 "saturation_level": self.saturation_level}
 
-    def clip_level(self, dtype: np.dtype) -> float | str | None:
-        """The ``saturation_level`` passed to the detector for frames of ``dtype``."""
-        if self.saturation_level is None and np.dtype(dtype) == np.uint16:
-            return "auto"
-        return self.saturation_level
 
 
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
@@ -124,7 +121,7 @@ def options_from_session(session: Session, mode: str | None = None, color: str |
     settings = session.settings()
     return DetectOptions(mode or settings.get("laser_mode", "spot"), color or settings.get("laser_color", "grey"),
                          None if roi is None else tuple(int(x) for x in roi), k_detect, direction, dark,
-                         settings.get("saturation_level") if saturation_level is None else saturation_level)
+                         settings.get("saturation_level", "auto") if saturation_level is None else saturation_level)
 
 
 @dataclass
@@ -185,14 +182,12 @@ def detect_session(
     if workers < 1:
         raise InputError(f"workers must be at least 1, got {workers}")
     cameras = session.camera_names("scan")
-    tables, done, clipped_at_full_scale = [empty_table()], set(), False
+    tables, done = [empty_table()], set()
     if resume and session.traces_path.exists():
         table, meta = read_traces(session.traces_path)
         made_with = meta.get("options")
         if isinstance(made_with, dict):
-            clipped_at_full_scale = "saturation_level" not in made_with
-            defaults = DetectOptions().as_dict()
-            made_with = made_with | {k: defaults[k] for k in _LATER_OPTIONS if k not in made_with}
+            made_with = made_with | {k: v for k, v in _LATER_OPTIONS.items() if k not in made_with}
         if made_with != options.as_dict():
             raise FileFormatError(session.traces_path, f"was made with options {made_with}, "
                                   f"not {options.as_dict()}; run without --resume to start again")
@@ -202,9 +197,6 @@ def detect_session(
         raise InputError(f"{object_poses_path(session.root)}: the object moves between frames, so the median of "
                          "its frames is not a laser-off frame; take one (scan/<camera>/dark.<ext>) instead")
     jobs = _jobs(session, cameras, options, done)
-    if clipped_at_full_scale and options.saturation_level is None and any(j.dtype == "uint16" for j in jobs):
-        raise FileFormatError(session.traces_path, "was made when 16-bit frames were clipped at 65535, not at the "
-                              "level found from the frames; run without --resume to start again")
     total = sum(len(j.frames) for j in jobs)
     finished = sorted(done)
     last_write = time.monotonic()
@@ -294,7 +286,7 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
     with _bright_scene_caught() as messages:
         table = detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
-                       saturation_level=options.clip_level(image.dtype), camera=camera, frame=frame,
+                       saturation_level=options.saturation_level, camera=camera, frame=frame,
                        check_color=False, **scan)
     for message in messages:
         warnings.warn(BrightSceneWarning(f"camera {camera!r} frame {frame!r}: {message}"), stacklevel=2)
