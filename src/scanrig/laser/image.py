@@ -185,10 +185,10 @@ def prepare_image(
     roi : (u0, v0, u1, v1) ints, optional
         Region of interest, pixels, end-exclusive. Default: the whole frame.
     saturation_level : float or "auto", optional
-        DN at which a pixel is clipped, in every channel; set it for a 12-bit camera stored in
-        16-bit files. ``"auto"``: each channel's, found from the frame and the dark frame
-        (:func:`~scanrig.laser.clip_level.channel_clip_levels`; for webcams that clip below 255). Default: the dtype's
-        maximum (255 or 65535).
+        DN at which a pixel is clipped, in every channel. ``"auto"``: each channel's, found from the
+        frame and the dark frame (:func:`~scanrig.laser.clip_level.channel_clip_levels`; for a colour
+        camera, whose white balance can clip a channel below 255, and 10- to 14-bit data in 16-bit
+        files). Default: the dtype's maximum (255 or 65535).
     noise_sigma : float, optional
         Known noise standard deviation of the signal, DN; estimated from the frame when omitted.
 

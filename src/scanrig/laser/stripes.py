@@ -93,8 +93,9 @@ def detect_stripe(
         Known noise σ of the signal, DN; estimated robustly from the frame when omitted.
     saturation_level : float or "auto", optional
         DN at which pixels clip (default: dtype maximum); ``"auto"`` finds each channel's level from
-        the frames (:func:`~scanrig.laser.clip_level.channel_clip_levels`). Clipped pixels are left out of
-        the fit.
+        the frames (:func:`~scanrig.laser.clip_level.channel_clip_levels`), as ``scanrig detect`` does:
+        use it for a colour camera, whose white balance can clip a channel below 255, and for 10- to
+        14-bit data in 16-bit files. Clipped pixels are left out of the fit.
     k_detect : float
         Detection threshold: the 3 × 3 box sum above background, in units of its noise.
     min_separation_px : float
