@@ -4,6 +4,7 @@ The stripe pixels carry 0.2 px noise and every pose's target plane a pose error 
 0.05 mm shift), shared by all points of the pose, as from a calibration's bundle adjustment.
 """
 
+import re
 import tomllib
 
 import numpy as np
@@ -88,6 +89,31 @@ def test_warnings_for_few_and_alike_poses():
     assert tilt > TILT_WARN_DEG
     assert f"the plane's tilt is known only to {tilt:.3f} deg (1 sigma): the poses are too few or too alike; " \
            "add poses at other distances and tilts" in fit.warnings
+
+
+def test_a_pose_mostly_off_the_plane_says_whether_it_is_shifted_or_scattered():
+    """Pose p2's stripe pixels scatter 3 px instead of 0.2 (the stripe along printed edges): most of
+    its points fall outside the gate but centred on the plane. Pose p4's target plane is 3 mm off
+    (a wrong pose): its stripe lies off the plane. Before, both were put down to a wrong target pose
+    or another light."""
+    rng = np.random.default_rng(8)
+    planes, pixels, _ = synth.observation(rng)
+    pixels[2] = pixels[2] + rng.normal(0.0, 3.0, pixels[2].shape)
+    normal, offset = planes[4]
+    planes[4] = (normal, offset + 0.003)
+    fit = calibrate_light_plane(synth.camera(), planes, pixels, rng, names=[f"p{k}" for k in range(6)])
+    scattered = [w for w in fit.warnings if w.startswith("pose p2: ")]
+    shifted = [w for w in fit.warnings if w.startswith("pose p4: ")]
+    assert len(scattered) == 1 and len(shifted) == 1 and len(fit.warnings) == 2
+    assert re.fullmatch(r"pose p2: only \d+ of 200 stripe points lie on the plane; they scatter (\d\.\d{3}) mm about "
+                        r"it, against (\d\.\d{3}) mm over all poses \(the stripe along the print's edges, or seen at a "
+                        r"grazing angle\?\)", scattered[0])
+    spread, scale = (float(x) for x in re.findall(r"(\d\.\d{3}) mm", scattered[0]))
+    assert spread > 5 * scale
+    match = re.fullmatch(r"pose p4: only \d+ of 200 stripe points lie on the plane; its stripe lies ([+-]\d\.\d{3}) mm "
+                         r"off it \(a wrong target pose, or another light on the target\?\)", shifted[0])
+    # the stripe points slide along their rays to the shifted target: 0.88 mm off the light plane here
+    assert match and abs(float(match.group(1))) > 10 * 1e3 * fit.scale_m
 
 
 def test_bad_input():

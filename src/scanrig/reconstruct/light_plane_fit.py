@@ -182,7 +182,8 @@ def fit_light_plane(points_by_pose, rng: np.random.Generator, names=None,
     if g >= MIN_JACKKNIFE_POSES:
         plane = with_jackknife_uncertainty(plane, p[inliers], np.ones(int(inliers.sum())), pose[inliers],
                                            variance_factor=(g - 1) / (g - 3))
-    return LightPlaneFit(plane, residuals, p, pose, inliers, scale, _warnings(plane, residuals))
+    shifts = _pose_shifts(plane, p[on_line], pose[on_line], len(parts))
+    return LightPlaneFit(plane, residuals, p, pose, inliers, scale, _warnings(plane, residuals, shifts, scale))
 
 
 def _gated_refits(p: np.ndarray, model, distance_of, fit):
@@ -290,8 +291,23 @@ def _check_poses_agree(residuals) -> None:
                      f"target pose, or another light on the target? The poses must show one laser's stripe")
 
 
-def _warnings(plane: LightPlane, residuals) -> tuple:
-    """Poses too few or too alike to fix the plane; poses mostly off the plane."""
+def _pose_shifts(plane: LightPlane, p: np.ndarray, pose: np.ndarray, n_poses: int) -> np.ndarray:
+    """Per pose, the median signed distance of its points ``p (N, 3)`` (of poses ``pose (N,)``) to
+    ``plane`` and their robust spread about it (``MAD_TO_SIGMA`` × the median absolute deviation):
+    ``(n_poses, 2)`` metres, NaN for a pose without points."""
+    d = plane.distance(p)
+    out = np.full((n_poses, 2), np.nan)
+    for k in np.unique(pose):  # a handful of poses; each median is vectorised over its points
+        dk = d[pose == k]
+        median = float(np.median(dk))
+        out[k] = median, MAD_TO_SIGMA * float(np.median(np.abs(dk - median)))
+    return out
+
+
+def _warnings(plane: LightPlane, residuals, shifts: np.ndarray, scale_m: float) -> tuple:
+    """Poses too few or too alike to fix the plane; poses mostly off the plane, and whether their
+    stripe lies off it (its median distance beyond the gate) or scatters about it (``shifts``:
+    :func:`_pose_shifts`; ``scale_m``: the inlier scale of all poses)."""
     out = []
     used = [r for r in residuals if r.n_inliers > 0]
     if len(used) < RECOMMENDED_POSES:
@@ -301,10 +317,16 @@ def _warnings(plane: LightPlane, residuals) -> tuple:
     if tilt_deg > TILT_WARN_DEG:
         out.append(f"the plane's tilt is known only to {tilt_deg:.3f} deg (1 sigma): the poses are too few or "
                    f"too alike; add poses at other distances and tilts")
-    for r in residuals:
-        if r.n_points and not _agrees(r):
-            out.append(f"pose {r.name}: only {r.n_inliers} of {r.n_points} stripe points lie on the plane "
-                       f"(a wrong target pose, or another light on the target?)")
+    for r, (median_m, spread_m) in zip(residuals, shifts):
+        if not r.n_points or _agrees(r):
+            continue
+        head = f"pose {r.name}: only {r.n_inliers} of {r.n_points} stripe points lie on the plane"
+        if np.isfinite(median_m) and abs(median_m) <= INLIER_SIGMAS * scale_m:
+            out.append(f"{head}; they scatter {1e3 * spread_m:.3f} mm about it, against {1e3 * scale_m:.3f} mm over "
+                       f"all poses (the stripe along the print's edges, or seen at a grazing angle?)")
+        else:
+            off = "" if not np.isfinite(median_m) else f"; its stripe lies {1e3 * median_m:+.3f} mm off it"
+            out.append(f"{head}{off} (a wrong target pose, or another light on the target?)")
     return tuple(out)
 
 
