@@ -7,9 +7,9 @@ and result tables cross process boundaries). ``traces.parquet`` is rewritten ato
 its metadata; ``resume=True`` skips those, including frames that had no candidate.
 
 Frames are taken as they are, not as ``laser_color`` says: a colour frame whose channels are
-equal is detected as grey, each channel is clipped where its data clip (found from the frames unless
-``saturation_level`` says), and
-:func:`colour_mismatches` names the cameras whose frames show a laser of another colour. A frame
+equal is detected as grey, each channel is clipped where its data clip (found from the frames
+unless ``saturation_level`` says), and :func:`colour_mismatches` names the cameras whose frames
+show a laser of another colour. A frame
 whose scene itself reaches the clip level (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`) is
 named in that warning, issued again in the calling process whichever worker detected it.
 """
@@ -103,14 +103,13 @@ class DetectOptions:
             raise InputError(f"dark must be one of {DARK_SOURCES}, got {self.dark!r}")
         level = self.saturation_level
         if not (level == "auto" or (isinstance(level, (int, float)) and not isinstance(level, bool)
-                                                     and math.isfinite(level) and level > 0)):
+                                    and math.isfinite(level) and level > 0)):
             raise InputError(f"saturation_level must be a positive number of DN or 'auto', got {level!r}")
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "color": self.color, "roi": None if self.roi is None else list(self.roi),
                 "k_detect": self.k_detect, "direction": self.direction, "dark": self.dark,
                 "saturation_level": self.saturation_level}
-
 
 
 def options_from_session(session: Session, mode: str | None = None, color: str | None = None,
