@@ -418,6 +418,23 @@ def test_detect_verb_on_session_variants(tmp_path, frames, reference, baseline, 
     assert stripe_share(table, added, bust, along_rows, scale) >= baseline[True] - margin
 
 
+@pytest.mark.parametrize("level", [None, 235], ids=["found", "set to 235"])
+def test_a_jpeg_channel_clipped_below_255_needs_its_level_set(tmp_path, frames, reference, baseline, level):
+    """Red clipping at 235 DN (white balance), stored as JPEG (quality 80, 4:2:0): the plateau is
+    spread over some 15 values, piles up on none, and the level is not found (share 0.953, a limit
+    pinned here); ``saturation_level = 235`` in session.toml gives the PNG's share (0.989)."""
+    assert detect_cli(tmp_path, *(_red_gain(f) for f in frames), ".jpg") == 0
+    if level is not None:
+        with open(tmp_path / "session.toml", "a") as toml:
+            toml.write(f"saturation_level = {level}\n")
+        assert main(["detect", str(tmp_path)]) == 0
+    share = stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference)
+    if level is None:
+        assert 0.94 <= share < baseline[True] - PHOTOMETRIC_MARGIN
+    else:
+        assert share >= baseline[True] - PHOTOMETRIC_MARGIN
+
+
 def test_detect_verb_on_grey_frames_with_a_red_laser(tmp_path, frames, reference):
     """Grey PNGs, ``laser_color = "red"``: as the library on the grey frames (0.9651 measured)."""
     assert detect_cli(tmp_path, *(grey(f) for f in frames), ".png") == 0
