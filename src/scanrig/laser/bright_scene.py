@@ -152,10 +152,10 @@ def _seed_floor(saturated: np.ndarray, scene_clipped: np.ndarray, with_dark: boo
     26 more rows of 1392 with a rank 0 over 3 px off). The laser-off frame, which holds them too,
     takes them out (no more such rows); with it the floor is in the cells ``scene_clipped``
     (``(Hc, Wc)`` bool, :func:`scene_reaches_clip`) and within two cells of those whose pixels are
-    mostly flagged as clipped (``saturated``, ``(H, W)`` bool; :func:`_flagged_share`): where the paper itself clips, print bordering it seeds blobs along
-    the edge, and where only some cells of paper just below the clip level reach it (15-35 % at
-    0.9 of full scale) the print between them is far from it and the beam on it seeds as in a
-    normal frame (33-58 noise σ above it).
+    mostly flagged as clipped (``saturated``, ``(H, W)`` bool; :func:`_flagged_share`): where the
+    paper itself clips, print bordering it seeds blobs along the edge, and where only some cells of
+    paper just below the clip level reach it (15-35 % at 0.9 of full scale) the print between them
+    is far from it and the beam on it seeds as in a normal frame (33-58 noise σ above it).
     """
     if not with_dark:
         return np.full(scene_clipped.shape, np.float32(0.5 * saturation_level))
