@@ -73,6 +73,21 @@ def test_clipping_at_sensor_max_in_every_channel():
     assert (rgb == sensor.max_dn).all()
 
 
+def test_white_balance_below_one_clips_its_channel_below_full_scale():
+    """A gain applied after the sensor clipped: red at 0.92 clips at round(0.92 * 255) = 235 DN,
+    wherever the sensor clipped it, and every other pixel of red is scaled and rounded."""
+    sensor = Sensor()
+    laser = _stripe(peak_e=8 * sensor.full_well_e)
+    scene = np.full(laser.shape, 3500.0)
+    plain = colour_frame(scene, laser, sensor, ColourResponse(), None)
+    balanced = colour_frame(scene, laser, sensor, ColourResponse(white_balance=(0.92, 1.0, 1.5)), None)
+    assert balanced[..., 0].max() == 235
+    assert np.array_equal(balanced[..., 0] == 235, plain[..., 0] == sensor.max_dn)
+    assert np.array_equal(balanced[..., 0], np.rint(plain[..., 0] * np.float32(0.92)).astype(np.uint8))
+    assert np.array_equal(balanced[..., 1], plain[..., 1])
+    assert np.array_equal(balanced[..., 2], np.minimum(np.rint(plain[..., 2] * 1.5), 255).astype(np.uint8))
+
+
 def test_halo_kernel_is_normalised_and_exponential():
     k = halo_kernel(3.0).astype(np.float64)
     h = k.shape[0] // 2
@@ -161,6 +176,8 @@ def test_same_seed_same_frame():
     ("bayer", 1, "colour bayer must be true or false, got 1"),
     ("jpeg_quality", 0, "colour jpeg_quality must be an integer in [1, 100] or absent, got 0"),
     ("jpeg_quality", 90.0, "colour jpeg_quality must be an integer in [1, 100] or absent, got 90.0"),
+    ("white_balance", (1.0, 0.0, 1.0), "colour white_balance must be 3 finite gains > 0, got (1.0, 0.0, 1.0)"),
+    ("white_balance", (1.0, 1.0), "colour white_balance must be 3 finite gains > 0, got (1.0, 1.0)"),
 ])
 def test_bad_response_fields(field, value, message):
     with pytest.raises(InputError) as err:
@@ -206,8 +223,9 @@ def test_grey_scenes_have_no_colour(tmp_path):
 
 
 def test_camera_table_sets_the_response_and_only_overexposure_for_grey(tmp_path):
-    scene = load_scene_file(_scene_file(tmp_path, "\n[camera]\ncolor = true\nlaser_rgb = [1.0, 0.1, 0.1]\n"))
-    assert scene.colour == ColourResponse(laser_rgb=(1.0, 0.1, 0.1))
+    scene = load_scene_file(_scene_file(tmp_path, "\n[camera]\ncolor = true\nlaser_rgb = [1.0, 0.1, 0.1]\n"
+                                                  "white_balance = [0.92, 1.0, 1.1]\n"))
+    assert scene.colour == ColourResponse(laser_rgb=(1.0, 0.1, 0.1), white_balance=(0.92, 1.0, 1.1))
     grey = load_scene_file(_scene_file(tmp_path, "\n[camera]\nlaser_overexposure = 2.0\n"))
     assert grey.colour is None
     assert grey.laser.power_W * nominal_peak_e_per_W(grey.laser, grey.sensor, grey.rig, grey.center_m, "spot") \

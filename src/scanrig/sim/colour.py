@@ -59,6 +59,10 @@ class ColourResponse:
     jpeg_quality : int or None
         Store as JPEG at this quality (1 to 100) with 4:2:0 chroma subsampling; None = lossless.
         Needs an 8-bit sensor.
+    white_balance : tuple of 3 float
+        Gain of R, G, B applied to the digital numbers after the sensor clipped (and after
+        demosaicing), rounded and clipped to the dtype again (> 0): a channel with a gain below 1
+        clips below full scale, as webcams' white balance makes it.
     """
 
     laser_rgb: tuple[float, float, float] = (1.0, 0.06, 0.04)
@@ -67,16 +71,20 @@ class ColourResponse:
     halo_radius_px: float = 3.0
     bayer: bool = False
     jpeg_quality: int | None = None
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
-        for name in ("laser_rgb", "ambient_rgb"):
+        for name, positive, what in (("laser_rgb", False, "numbers >= 0, not all 0"),
+                                     ("ambient_rgb", False, "numbers >= 0, not all 0"),
+                                     ("white_balance", True, "gains > 0")):
             value = getattr(self, name)
             try:
                 rgb = tuple(float(v) for v in value)
             except (TypeError, ValueError):
                 rgb = ()
-            if len(rgb) != 3 or not all(math.isfinite(v) and v >= 0 for v in rgb) or max(rgb) == 0:
-                raise InputError(f"colour {name} must be 3 finite numbers >= 0, not all 0, got {value!r}")
+            if (len(rgb) != 3 or not all(math.isfinite(v) and v >= 0 for v in rgb)
+                    or (min(rgb) if positive else max(rgb)) == 0):
+                raise InputError(f"colour {name} must be 3 finite {what}, got {value!r}")
             object.__setattr__(self, name, rgb)
         if not (isinstance(self.halo_fraction, (int, float)) and 0 <= self.halo_fraction <= 1):
             raise InputError(f"colour halo_fraction must be in [0, 1], got {self.halo_fraction!r}")
@@ -223,7 +231,7 @@ def sensor_rgb(scene_e: np.ndarray, laser_e: np.ndarray, sensor: Sensor, respons
     Parameters and returns as :func:`colour_frame`.
     """
     check_sensor(response, sensor)
-    return demosaic(expose_rgb(channel_electrons(scene_e, laser_e, response), sensor, rng), response)
+    return processed(expose_rgb(channel_electrons(scene_e, laser_e, response), sensor, rng), response)
 
 
 def check_sensor(response: ColourResponse, sensor: Sensor) -> None:
@@ -239,9 +247,15 @@ def expose_rgb(electrons: np.ndarray, sensor: Sensor, rng: np.random.Generator |
     return np.stack([expose(electrons[..., c]) for c in range(3)], axis=-1)
 
 
-def demosaic(rgb: np.ndarray, response: ColourResponse) -> np.ndarray:
-    """The Bayer mosaic and demosaicing when the camera has one, else ``rgb`` unchanged."""
-    return bayer_demosaic(rgb) if response.bayer else rgb
+def processed(rgb: np.ndarray, response: ColourResponse) -> np.ndarray:
+    """The camera's processing of the sensor's digital numbers ``rgb`` (H, W, 3): the Bayer mosaic
+    and demosaicing when it has one, then the white balance (``rgb`` itself when neither applies)."""
+    rgb = bayer_demosaic(rgb) if response.bayer else rgb
+    if response.white_balance == (1.0, 1.0, 1.0):
+        return rgb
+    gain = np.asarray(response.white_balance, np.float32)
+    full_scale = np.iinfo(rgb.dtype).max
+    return np.clip(np.rint(rgb * gain), 0, full_scale).astype(rgb.dtype)
 
 
 def stored(rgb: np.ndarray, response: ColourResponse) -> np.ndarray:

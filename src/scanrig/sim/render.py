@@ -16,7 +16,8 @@ Image formation, in order (all linear until the sensor):
 
 A colour camera (``scene.colour``, :mod:`scanrig.sim.colour`) sees the grey background times
 ``ambient_rgb`` per channel and the laser window, grown by the reach of the sub-surface halo,
-through its channel responses; the whole frame is then demosaiced and, as stored, JPEG-coded.
+through its channel responses; the whole frame is then demosaiced, white-balanced and, as stored,
+JPEG-coded.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from scanrig.sim.colour import (
     ColourNoise,
     channel_electrons,
     colour_frame,
-    demosaic,
     expose_rgb,
+    processed,
     stored,
 )
 from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
@@ -300,7 +301,8 @@ class CameraView:
 
     def sensor_frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
         """A noisy digital frame as the camera delivers it, before storage (laser-free when
-        ``trace`` is None): (H, W) grey, or (H, W, 3) RGB, demosaiced, for a colour camera."""
+        ``trace`` is None): (H, W) grey, or (H, W, 3) RGB, demosaiced and white-balanced, for a colour
+        camera."""
         img = self.noise.frame(rng)
         win = self.laser_window(trace, rng) if trace is not None else None
         if self.colour is None:
@@ -311,7 +313,7 @@ class CameraView:
             win = win.padded(self.colour.halo_pad_px, img.shape[:2])
             electrons = channel_electrons(self.background_e[win.slices], win.electrons, self.colour)
             img[win.slices] = expose_rgb(electrons, self.sensor, rng)
-        return demosaic(img, self.colour)
+        return processed(img, self.colour)
 
     def frame(self, trace: LaserTrace | None, rng: np.random.Generator) -> np.ndarray:
         """A noisy digital frame as stored (:meth:`sensor_frame`, then a colour camera's JPEG
