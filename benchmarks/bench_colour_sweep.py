@@ -8,7 +8,8 @@ paper with 40 printed black dots, crosstalk 7 % / 5 % into green / blue, a 3-px 
 carrying 30 % of the light, Bayer demosaicing, JPEG 90 at 4:2:0, beam sigma 1.2 px, slope 0.15 px
 per row, paper at 0.64 of full scale), rendered at 640 x 480 with exact truth, and the same with one
 factor changed: the laser's exposure, crosstalk, halo, storage, beam width, slope, sensor noise, the
-paper's level, the laser's colour and the density of print. Each condition runs without and with
+paper's level, the laser's colour, the density of print and a white balance that clips red below
+full scale (at the dtype's maximum, and with ``saturation_level="auto"``). Each condition runs without and with
 the laser-off frame, on the same seeds (the same dots and stripe positions). Per condition, pooled
 over the seeds and the rows 8 px or more from the frame's top and bottom: the share of rows whose
 rank-0 centre lies within 0.5 px of the truth (a row's own rank 0, else the column-scanned one
@@ -62,6 +63,7 @@ class Condition:
     color: str = "red"
     n_dots: int = 40
     direction: str = "auto"
+    saturation_level: float | str | None = None
 
 
 def sensor(noise_scale: float) -> Sensor:
@@ -122,6 +124,9 @@ def conditions() -> list[Condition]:
     out += [Condition("green laser", color="green", response=dataclasses.replace(r, laser_rgb=(0.07, 1.0, 0.05))),
             Condition("blue laser", color="blue", response=dataclasses.replace(r, laser_rgb=(0.05, 0.07, 1.0)))]
     out += [Condition(f"{n} printed dots", n_dots=n) for n in (0, 150)]
+    # white balance after the sensor clipped: red clips at 217 DN, spread by the JPEG
+    out += [Condition(f"red gain 0.85{note}", response=dataclasses.replace(r, white_balance=(0.85, 1.0, 1.0)),
+                      saturation_level=level) for note, level in (("", None), (", auto", "auto"))]
     return out
 
 
@@ -175,7 +180,8 @@ def measure(cond: Condition, seeds, use_dark: bool) -> dict:
     for seed in seeds:
         on, off, truth = frames(cond, np.random.default_rng(seed))
         t0 = time.process_time()
-        table = detect_stripe(on, color=cond.color, dark=off if use_dark else None, direction=cond.direction)
+        table = detect_stripe(on, color=cond.color, dark=off if use_dark else None, direction=cond.direction,
+                              saturation_level=cond.saturation_level)
         ms.append(1e3 * (time.process_time() - t0))
         error, sig = rank0_by_row(table, truth)
         e = error[rows]

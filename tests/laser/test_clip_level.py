@@ -6,6 +6,8 @@ import pytest
 from scanrig.errors import InputError
 from scanrig.laser.clip_level import channel_clip_levels
 from scanrig.laser.image import CLIP_MARGIN, prepare_image
+from scanrig.sim.colour import jpeg_round_trip
+from tests.laser.colour_synth import stripe_frames
 
 SHAPE = (240, 320)
 #: Scene level and noise of the synthetic frames, DN.
@@ -75,6 +77,41 @@ def test_the_dark_frame_counts_too():
     off[:, :, 0] = np.minimum(off[:, :, 0] + ramp_dn, WEBCAM_RED_CLIP)
     assert channel_clip_levels(off)[0] == WEBCAM_RED_CLIP
     np.testing.assert_array_equal(channel_clip_levels(on, off), [WEBCAM_RED_CLIP, 255, 255])
+
+
+@pytest.mark.parametrize("quality", [95, 80, 60])
+def test_a_plateau_that_jpeg_spread_is_found_from_the_lasers_peaks(quality):
+    """JPEG scatters the plateau clipped at 180 DN over some 15 values: no value piles up, and only
+    the laser's channel, whose lines' peaks top out in one band, finds it again (at the plateau's
+    lower quartile, a few DN under the clip)."""
+    frame = jpeg_round_trip(stripe_frame(peak_dn=600.0, seed=12, red_clip=WEBCAM_RED_CLIP), quality)
+    dark = jpeg_round_trip(stripe_frame(peak_dn=0.0, seed=13), quality)
+    assert channel_clip_levels(frame)[0] == 255
+    for off in (None, dark):
+        levels = channel_clip_levels(frame, off, laser_channel=0)
+        assert WEBCAM_RED_CLIP - 8 <= levels[0] <= WEBCAM_RED_CLIP
+        np.testing.assert_array_equal(levels[1:], [255, 255])
+
+
+def test_peaks_clipped_at_full_scale_keep_the_dtype_maximum():
+    """Over-exposed red stripes on printed paper, clipped at 255 and stored as JPEG: the lines' maxima
+    reach 255, so no band below it is the clip."""
+    on, off, _ = stripe_frames(np.random.default_rng(0))
+    np.testing.assert_array_equal(channel_clip_levels(on, off, laser_channel=0), [255, 255, 255])
+
+
+def test_a_frame_without_the_laser_has_no_peaks_to_read():
+    """The laser-off frame of printed paper as JPEG: the paper between dots tops many lines at one
+    level, but it covers most of the frame, as a laser's plateau never does."""
+    _, off, _ = stripe_frames(np.random.default_rng(1))
+    np.testing.assert_array_equal(channel_clip_levels(off, laser_channel=0), [255, 255, 255])
+
+
+def test_the_peaks_are_read_in_8_bit_frames_only():
+    """JPEG stores 8 bits: a 16-bit frame's clip piles up on one value, or is its top."""
+    frame = jpeg_round_trip(stripe_frame(peak_dn=600.0, seed=14, red_clip=WEBCAM_RED_CLIP), 80)
+    assert channel_clip_levels(frame, laser_channel=0)[0] < 255
+    assert channel_clip_levels(frame.astype(np.uint16) * 257, laser_channel=0)[0] == 65535
 
 
 @pytest.mark.parametrize("use_dark", [False, True])

@@ -221,7 +221,7 @@ def prepare_image(
     if isinstance(saturation_level, str):
         if saturation_level != "auto":
             raise InputError(f"saturation_level must be a number of DN or 'auto', got {saturation_level!r}")
-        levels = channel_clip_levels(image, dark)
+        levels = channel_clip_levels(image, dark, CHANNEL[color] if image.ndim == 3 and color != "grey" else None)
     else:
         if saturation_level is None:
             saturation_level = full_scale
