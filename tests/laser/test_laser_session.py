@@ -11,7 +11,8 @@ import pytest
 from scanrig.cli.main import main
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import Session, read_image, write_image
-from scanrig.laser.session_detect import DetectOptions, colour_mismatches, detect_session, options_from_session
+from scanrig.laser.session_detect import (DetectOptions, colour_mismatches, detect_frame, detect_session,
+                                          options_from_session)
 from scanrig.laser.traces import SCHEMA, read_traces, write_traces
 
 from .synth import spot_image, stripe_image
@@ -159,6 +160,34 @@ def test_dark_frame_is_used(session):
         write_image(cam / f"f{k}.png", np.clip(img.astype(int) + glare, 0, 255).astype(np.uint8))
     table = detect_session(session)
     assert len(table.filter(pa.compute.equal(table["camera"], "cam2"))) == N_FRAMES + 1
+
+
+def test_each_frame_takes_its_own_laser_off_frame(tmp_path):
+    """A moving object (a turntable): every frame has its own laser-off frame in
+    ``scan/<camera>/dark/``, with the frame's stem; a frame without one takes the camera's
+    ``dark.png``. Each frame's candidates are those of the frame with its laser-off frame."""
+    from tests.laser.colour_synth import stripe_frames
+
+    folder = tmp_path / "scan" / "cam0"
+    (folder / "dark").mkdir(parents=True)
+    pairs = [stripe_frames(np.random.default_rng(seed))[:2] for seed in range(3)]  # other print each time
+    for k, (on, off) in enumerate(pairs):
+        write_image(folder / f"f{k}.png", on)
+        if k < 2:
+            write_image(folder / "dark" / f"f{k}.png", off)
+    write_image(folder / "dark.png", pairs[2][1])
+    (tmp_path / "session.toml").write_text('laser_mode = "stripe"\nlaser_color = "red"\n')
+    options = options_from_session(Session(tmp_path))
+    table = detect_session(tmp_path, options, workers=2)
+    for k, (on, off) in enumerate(pairs):
+        mine = np.sort(table.filter(pa.compute.equal(table["frame"], f"f{k}"))["u"].to_numpy())
+        assert mine.size > 400
+        np.testing.assert_array_equal(mine, np.sort(detect_frame(on, off, options)["u"].to_numpy()))
+        assert not np.array_equal(mine, np.sort(detect_frame(on, None, options)["u"].to_numpy()))
+    write_image(folder / "dark" / "f1.png", pairs[1][1][:100])
+    with pytest.raises(FileFormatError, match=r"dark/f1.png: laser-off frame is 640x100 8-bit colour but dark.png of "
+                                              r"camera 'cam0' is 640x480 8-bit colour"):
+        detect_session(tmp_path, options)
 
 
 def test_no_candidate_anywhere_writes_nothing_and_keeps_an_earlier_file(session):

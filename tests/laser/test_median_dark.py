@@ -96,7 +96,7 @@ def test_bad_input_is_named(sweep, tmp_path, capsys):
     (turntable / "scan" / "object_poses.csv").write_text("frame,qw,qx,qy,qz,tx,ty,tz\n")
     assert main(["detect", str(turntable), "--dark", "median"]) == 2
     assert ("object_poses.csv: the object moves between frames, so the median of its frames is not a laser-off "
-            "frame; take one (scan/<camera>/dark.<ext>) instead") in capsys.readouterr().err
+            "frame; take one at every step (scan/<camera>/dark/<frame>.<ext>) instead") in capsys.readouterr().err
     assert main(["detect", str(turntable), "--dark", "mean"]) == 2
     assert "dark must be one of ('file', 'median'), got 'mean'" in capsys.readouterr().err
     assert not (turntable / "traces.parquet").exists()

@@ -27,8 +27,9 @@ def command(
         help="Stripes: scan along rows, columns, or auto (chosen per block). A fixed laser plane "
              "seen steeply (a single-camera scanner) is best scanned along rows.")] = "auto",
     dark: Annotated[str, typer.Option(
-        help="Laser-off frame of a camera: its scan/<camera>/dark.<ext> (file), or where it has none the "
-             "median of its scan frames (median: a laser swept over a fixed scene).")] = "file",
+        help="Laser-off frame of a frame: its own scan/<camera>/dark/<frame>.<ext>, else the camera's "
+             "scan/<camera>/dark.<ext> (file), or where it has neither the median of its scan frames (median: a "
+             "laser swept over a fixed scene).")] = "file",
     saturation_level: Annotated[str | None, typer.Option(
         metavar="DN|auto",
         help="Level at which pixels clip, DN, or auto (the default, or saturation_level in session.toml): each "

@@ -7,7 +7,8 @@
       target.toml                  the calibration target
       calibration/<camera>/<shot>.<ext>              (<ext>: IMAGE_SUFFIXES)
       calibration_intrinsic/<camera>/<image>.<ext>   optional: each camera's own intrinsic calibration
-      scan/<camera>/<frame>.<ext>                    (+ optional dark.<ext>, the laser-off frame)
+      scan/<camera>/<frame>.<ext>                    (+ optional dark.<ext>, the laser-off frame, and
+                                                     dark/<frame>.<ext>, a frame's own)
       rig.toml, traces.parquet, points.ply, surface.ply, mesh.ply, report.html
       truth/                       simulator only
 """
@@ -146,6 +147,19 @@ class Session:
             if p.exists():
                 return p
         return None
+
+    def frame_dark_paths(self, camera: str) -> dict[str, Path]:
+        """``stem -> path`` of the laser-off frames that scan frames of a camera have of their own,
+        ``scan/<camera>/dark/<stem>.<ext>`` (a turntable's object moves, so each step takes one);
+        empty without that folder.
+
+        Raises
+        ------
+        FileFormatError
+            As :func:`images_by_stem`.
+        """
+        folder = self.root / "scan" / camera / DARK_STEM
+        return images_by_stem(folder) if folder.is_dir() else {}
 
     def frames(self, stage: str, cameras: list[str] | None = None) -> dict[str, dict[str, Path]]:
         """``stem -> {camera: path}`` for every stem seen by any camera, in natural order.

@@ -41,8 +41,9 @@ from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
 
 MODES = ("spot", "stripe")
-#: Where a camera's laser-off frame comes from: its ``scan/<camera>/dark.<ext>`` only ("file"), or,
-#: where it has none, the median of its scan frames ("median", :mod:`scanrig.laser.median_dark`).
+#: Where a frame's laser-off frame comes from: its own ``scan/<camera>/dark/<frame>.<ext>`` or its
+#: camera's ``scan/<camera>/dark.<ext>`` only ("file"), or, where it has neither, the median of its
+#: camera's scan frames ("median", :mod:`scanrig.laser.median_dark`).
 DARK_SOURCES = ("file", "median")
 #: Options added after ``traces.parquet`` files were first written, and the values such files were
 #: made with: before ``saturation_level`` every frame was clipped at its dtype's maximum (None).
@@ -71,8 +72,10 @@ class DetectOptions:
         laser plane seen steeply (most single-camera scanners) is best scanned along rows only, so
         that no texture edge is taken along columns where the laser is not.
     dark : {"file", "median"}
-        "median": a camera without ``scan/<camera>/dark.<ext>`` takes the per-pixel median of its
-        scan frames as its laser-off frame (a laser swept over a fixed scene, not a moving object).
+        Every frame takes its own laser-off frame ``scan/<camera>/dark/<frame>.<ext>`` if it has
+        one, else its camera's ``scan/<camera>/dark.<ext>``. "median": a frame with neither takes
+        the per-pixel median of its camera's scan frames (a laser swept over a fixed scene, not a
+        moving object).
     saturation_level : float or "auto"
         DN at which pixels clip, or "auto": each channel's level found from the frames
         (:func:`~scanrig.laser.clip_level.channel_clip_levels`): a 16-bit file often holds a 10-, 12-
@@ -126,8 +129,7 @@ def options_from_session(session: Session, mode: str | None = None, color: str |
 @dataclass
 class _Job:
     camera: str
-    frames: list[tuple[str, str]]  # (stem, path)
-    dark_path: str | None
+    frames: list[tuple[str, str, str | None]]  # (stem, path, its laser-off frame's path)
     dark_image: np.ndarray | None  # the median of the camera's frames (options.dark == "median")
     shape: tuple[int, ...]
     dtype: str
@@ -149,7 +151,8 @@ def detect_session(
     ----------
     root : path
         Session folder (DESIGN.md §4): images in ``scan/<camera>/<frame>.<ext>``, optional
-        ``scan/<camera>/dark.<ext>``.
+        ``scan/<camera>/dark.<ext>`` and ``scan/<camera>/dark/<frame>.<ext>`` (a frame's own
+        laser-off frame, used instead of the camera's).
     options : DetectOptions, optional
         Default: :func:`options_from_session`.
     workers : int
@@ -194,7 +197,8 @@ def detect_session(
         done = {tuple(x) for x in meta.get("frames_done", [])}
     if options.dark == "median" and object_poses_path(session.root).exists():
         raise InputError(f"{object_poses_path(session.root)}: the object moves between frames, so the median of "
-                         "its frames is not a laser-off frame; take one (scan/<camera>/dark.<ext>) instead")
+                         "its frames is not a laser-off frame; take one at every step "
+                         "(scan/<camera>/dark/<frame>.<ext>) instead")
     jobs = _jobs(session, cameras, options, done)
     total = sum(len(j.frames) for j in jobs)
     finished = sorted(done)
@@ -207,7 +211,7 @@ def detect_session(
         for message in result.warnings:
             warnings.warn(BrightSceneWarning(message), stacklevel=3)
         tables.append(result.table)
-        finished.extend((job.camera, stem) for stem, _ in job.frames)
+        finished.extend((job.camera, stem) for stem, _, _ in job.frames)
         if progress:
             progress(len(finished) - len(done), total)
         if time.monotonic() - last_write > checkpoint_s:
@@ -233,21 +237,28 @@ def detect_session(
 
 
 def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: set) -> list[_Job]:
-    """Chunks of frames still to do, with each camera's reference shape and dark frame."""
+    """Chunks of frames still to do, each frame with its laser-off frame (its own, else the
+    camera's), and each camera's reference shape and median laser-off frame."""
     jobs = []
     for cam in cameras:
         paths = session.image_paths("scan", cam)
         dark = session.dark_path(cam)
-        todo = [(stem, str(p)) for stem, p in paths.items() if (cam, stem) not in done]
+        own = session.frame_dark_paths(cam)
+        todo = [(stem, str(p), _str_or_none(own.get(stem, dark))) for stem, p in paths.items() if (cam, stem) not in done]
         if not todo:
             continue
         reference = dark or paths[next(iter(paths))]
         img = read_image(reference)
-        median = median_dark(list(paths.values()), cam) if dark is None and options.dark == "median" else None
+        median = (median_dark(list(paths.values()), cam)
+                  if dark is None and options.dark == "median" and not own.keys() >= paths.keys() else None)
         for k in range(0, len(todo), _CHUNK_FRAMES):
-            jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], None if dark is None else str(dark), median,
-                             img.shape, str(img.dtype), str(reference), options))
+            jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], median, img.shape, str(img.dtype), str(reference),
+                             options))
     return jobs
+
+
+def _str_or_none(path: Path | None) -> str | None:
+    return None if path is None else str(path)
 
 
 def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, camera: str = "",
@@ -320,16 +331,19 @@ class _JobResult:
 def _run_job(job: _Job):
     """Detect in a chunk of frames (runs in a worker). Returns a :class:`_JobResult`, or (path,
     reason) on bad input."""
-    path = job.dark_path
+    path, read_dark, dark = None, None, job.dark_image
     try:
-        dark = job.dark_image if job.dark_path is None else read_image(job.dark_path)
         out = []
         with _bright_scene_caught() as messages:
-            for stem, path in job.frames:
+            for stem, path, dark_path in job.frames:
                 img = read_image(path)
-                if img.shape != job.shape or str(img.dtype) != job.dtype:
-                    return (path, f"frame is {describe_image(img.shape, img.dtype)} but {Path(job.reference).name} "
-                                  f"of camera {job.camera!r} is {describe_image(job.shape, job.dtype)}")
+                if dark_path != read_dark:  # the camera's laser-off frame is read once
+                    read_dark, dark = dark_path, job.dark_image if dark_path is None else read_image(dark_path)
+                for file, image, what in ((path, img, "frame"), (dark_path, dark, "laser-off frame")):
+                    if file is not None and (image.shape != job.shape or str(image.dtype) != job.dtype):
+                        return (file, f"{what} is {describe_image(image.shape, image.dtype)} but "
+                                      f"{Path(job.reference).name} of camera {job.camera!r} is "
+                                      f"{describe_image(job.shape, job.dtype)}")
                 out.append(detect_frame(img, dark, job.options, job.camera, stem))
     except FileFormatError as exc:
         return (str(exc.path), exc.reason)
@@ -364,10 +378,11 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
     """One line per camera whose frames show a laser of another colour than ``options.color``.
 
     Each camera's frame where ``options.color`` found the most laser light (its middle frame where
-    it found none) is detected again, with its laser-off file if any, in red, green and blue; a
-    colour that finds more than :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light
-    (:func:`_laser_light`; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan
-    lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
+    it found none) is detected again, with its laser-off frame if any (its own, else the camera's),
+    in red, green and blue; a colour that finds more than
+    :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light (:func:`_laser_light`; with a
+    rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan lines) is named
+    (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
     checked, nor a frame whose scene reaches the requested colour's clip level
     (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`, issued by the detection): that colour finds
     little there whatever the laser's, and another colour finds the white core of a beam of any
@@ -397,7 +412,7 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         found = {frame: total for (cam, frame), total in light.items() if cam == camera}
         stem = max(found, key=found.get) if found else list(paths)[len(paths) // 2]
         image = read_image(paths[stem])
-        dark_path = session.dark_path(camera)
+        dark_path = session.frame_dark_paths(camera).get(stem, session.dark_path(camera))
         light_with = functools.cache(functools.partial(_frame_light, image,
                                                        None if dark_path is None else read_image(dark_path), options))
         # the frames' own BrightSceneWarning was issued by the detection: none again here
