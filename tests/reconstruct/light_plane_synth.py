@@ -129,9 +129,10 @@ def true_plane_in_rig_world(session) -> tuple[np.ndarray, float]:
     return R.T @ plane.normal, plane.offset - plane.normal @ t
 
 
-def rendered_session(root, n_shots: int, seed: int = 3):
+def rendered_session(root, n_shots: int, seed: int = 3, scene=None):
     """Render ``n_shots`` light-plane shots of the chessboard (laser off and on) into the empty
-    folder ``root``: an 800 x 640 camera with f = 600 px, the default scene's laser (~2 s for 8)."""
+    folder ``root``: an 800 x 640 camera with f = 600 px, the laser and room of ``scene`` (default:
+    the default scene; ~2 s for 8)."""
     from scanrig.geometry import Rig
     from scanrig.sim.calibration_shots import default_target
     from scanrig.sim.library import load_scene
@@ -142,6 +143,6 @@ def rendered_session(root, n_shots: int, seed: int = 3):
     cam = Camera.from_opencv("cam0", K, np.array([-0.1, 0.05, 0, 0, 0]), np.eye(3), np.zeros(3), 800, 640)
     target = default_target("chessboard")
     save_target(target, root / "target.toml")
-    write_light_plane_shots(root, load_scene("default"), Rig([cam]), target, n_shots, np.random.default_rng(seed),
-                            workers=1)
+    write_light_plane_shots(root, scene or load_scene("default"), Rig([cam]), target, n_shots,
+                            np.random.default_rng(seed), workers=1)
     return root

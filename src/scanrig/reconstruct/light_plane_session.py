@@ -116,8 +116,10 @@ def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np
 
 
 def _stripe_on_target(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
-                      color: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`stripe_pixels` ``q (n, 2)``, ``board (n,)`` and the fitted peak of each centre, ``(n,)`` DN."""
+                      color: str, saturation_level: str | None = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`stripe_pixels` ``q (n, 2)``, ``board (n,)`` and the fitted peak of each centre, ``(n,)`` DN,
+    each channel clipped at its level found from the image (``saturation_level="auto"``, see
+    :func:`scanrig.detect_stripe`) or at the dtype's maximum (None)."""
     from scanrig.laser.stripes import detect_stripe
 
     none = np.zeros((0, 2)), np.zeros(0, int), np.zeros(0)
@@ -130,7 +132,8 @@ def _stripe_on_target(camera, target, world_from_target, image: np.ndarray, dark
     if u1 - u0 < 2 or v1 - v0 < 2:
         return none
     # A wrong colour is named by the caller (_colour_hint), with the pose: not by every detection.
-    table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)), check_color=False)
+    table = detect_stripe(image, color=color, dark=dark, roi=(int(u0), int(v0), int(u1), int(v1)), check_color=False,
+                          saturation_level=saturation_level)
     first = np.asarray(table.column("rank")) == 0
     q = np.column_stack([np.asarray(table.column("u")), np.asarray(table.column("v"))])[first]
     peak = np.asarray(table.column("peak"))[first]
@@ -201,13 +204,13 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         image, dark, note = _pose_frames(pose, camera)
         notes += [note] if note else []
         first = first or (pose, image, dark)
-        q, board, peak = _stripe_on_target(camera, target, pose.world_from_target, image, dark, color)
+        q, board, _ = _stripe_on_target(camera, target, pose.world_from_target, image, dark, color)
         p = points_on_target(camera, target, pose.world_from_target, q, board)
         ok = np.all(np.isfinite(p), axis=1)
         if ok.sum() < MIN_POSE_POINTS:
             skipped.append(f"{pose.image_path}: no laser stripe on the target ({int(ok.sum())} points), skipped")
         else:
-            used.append((pose, q[ok], board[ok], _light(peak)))
+            used.append((pose, q[ok], board[ok]))
             points.append(p[ok])
     folder = poses[0].image_path.parent if poses else Path("light_plane") / camera.name
     if not points:
@@ -216,8 +219,8 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
                          f"laser colour {color!r}{hint}")
     if color != "grey":
         # the pose with the most stripe points: a wrong colour still finds junk on every pose
-        pose, _, _, light = max(used, key=lambda entry: len(entry[1]))
-        hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2], own_light=light)
+        pose, _, _ = max(used, key=lambda entry: len(entry[1]))
+        hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2])
         if hint:
             raise InputError(f"{folder}: {pose.image_path.name} shows little {color} laser light on the target{hint}")
     if len(points) < 2:
@@ -229,7 +232,7 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
     p_samples = []
     for sample_camera, sample_poses in samples:
         p = np.concatenate([points_on_target(sample_camera, target, sample_poses.get(pose.name, pose.world_from_target),
-                                             q, board) for pose, q, board, _ in used])[fit.inliers]
+                                             q, board) for pose, q, board in used])[fit.inliers]
         if np.all(np.isfinite(p)):
             p_samples.append(p)
     return dataclasses.replace(fit, plane=with_sampled_uncertainty(fit.plane, p_samples)), skipped
@@ -269,8 +272,7 @@ def _light(peak: np.ndarray) -> float:
     return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
 
 
-def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark,
-                 own_light: float | None = None) -> str:
+def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
     """``"; the images show a red stripe: use --color red ..."`` when another colour finds far more
     laser light on the target (:func:`~scanrig.laser.colour_check.colour_shown`) in one pose's
     image, else ``""``.
@@ -278,12 +280,13 @@ def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.nda
     The light is the fitted peaks of the stripe centres on the target summed (0 with fewer than
     ``MIN_POSE_POINTS`` centres), not their number: a wrong colour finds a centre on most scan lines
     too, in noise and print (the real Ciclop board with a red laser: 331 centres in green, 863 in
-    blue, 611 in red), but not the laser's brightness. ``own_light``: ``color``'s, when already known.
+    blue, 611 in red), but not the laser's brightness. Every colour is detected with the channels
+    clipped at the dtype's maximum: a clip level found lower caps the summed peaks of a clipped
+    stripe in its colour only (on the real Ciclop board, whose red clips at 180 DN, red over blue
+    would fall from 3.39 to 2.93 times).
     """
     def light(colour: str) -> float:
-        if colour == color and own_light is not None:
-            return own_light
-        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour)[2])
+        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour, None)[2])
 
     best = colour_shown(image, color, light, least=np.finfo(float).tiny)
     return "" if best is None else f"; the images show a {best} stripe: {colour_advice(best)}"
