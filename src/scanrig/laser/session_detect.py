@@ -244,7 +244,8 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
         paths = session.image_paths("scan", cam)
         dark = session.dark_path(cam)
         own = session.frame_dark_paths(cam)
-        todo = [(stem, str(p), _str_or_none(own.get(stem, dark))) for stem, p in paths.items() if (cam, stem) not in done]
+        dark_of = {stem: str(own.get(stem, dark)) for stem in paths if own.get(stem, dark) is not None}
+        todo = [(stem, str(p), dark_of.get(stem)) for stem, p in paths.items() if (cam, stem) not in done]
         if not todo:
             continue
         reference = dark or paths[next(iter(paths))]
@@ -255,10 +256,6 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
             jobs.append(_Job(cam, todo[k : k + _CHUNK_FRAMES], median, img.shape, str(img.dtype), str(reference),
                              options))
     return jobs
-
-
-def _str_or_none(path: Path | None) -> str | None:
-    return None if path is None else str(path)
 
 
 def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, camera: str = "",

@@ -115,8 +115,8 @@ def stripe_pixels(camera, target, world_from_target, image: np.ndarray, dark: np
     return q, board
 
 
-def _stripe_on_target(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None,
-                      color: str, saturation_level: str | None = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _stripe_on_target(camera, target, world_from_target, image: np.ndarray, dark: np.ndarray | None, color: str,
+                      saturation_level: str | None = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`stripe_pixels` ``q (n, 2)``, ``board (n,)`` and the fitted peak of each centre, ``(n,)`` DN,
     each channel clipped at its level found from the image (``saturation_level="auto"``, see
     :func:`scanrig.detect_stripe`) or at the dtype's maximum (None)."""
