@@ -13,6 +13,7 @@ from scanrig.laser.colour_check import (
     equal_channels,
     grey_frames,
     laser_light,
+    one_colour,
 )
 from scanrig.laser.image import prepare_image
 from scanrig.laser.spots import detect_spots
@@ -90,6 +91,18 @@ def test_a_colour_that_finds_not_far_more_or_too_little_is_not_named():
 def test_a_grey_laser_is_compared_with_the_three_colours():
     found_with, _ = _light({"grey": 1.0, "red": 50.0, "green": 0.0, "blue": 0.0})
     assert colour_shown(_grey_in_colour() + np.array([1, 0, 0], np.uint8), "grey", found_with, 1.0) == "red"
+
+
+def test_a_laser_one_colour_finds_far_more_of_than_each_other_is_that_colour():
+    """A laser asked for as grey: grey (luma) finds as much as red, but the colours among themselves
+    tell; a white laser (every colour finds it) has none."""
+    colour = _grey_in_colour() + np.array([1, 0, 0], np.uint8)
+    found_with, asked = _light({"grey": 60.0, "red": 50.0, "green": 0.0, "blue": 50.0 / FEWER_FACTOR - 1})
+    assert colour_shown(colour, "grey", found_with, 0.0) is None
+    assert one_colour(colour, found_with) == "red"
+    assert one_colour(colour, _light({"red": 50.0, "green": 50.0 / FEWER_FACTOR, "blue": 0.0})[0]) is None
+    found_with, asked = _light({"red": 50.0, "green": 0.0, "blue": 0.0})
+    assert one_colour(_grey_in_colour(), found_with) is None and asked == []
 
 
 @pytest.mark.parametrize("grey", [lambda f: f, lambda f: f[:, :, 0]], ids=["three equal channels", "2-D"])

@@ -484,6 +484,21 @@ def test_detect_verb_on_swapped_channels_without_the_laser_off_frame(tmp_path, f
         "; the frames show a blue one: use --color blue (or laser_color = 'blue' in session.toml)"]
 
 
+def test_detect_verb_without_a_laser_colour_names_the_lasers(tmp_path, frames, reference, capsys):
+    """The real frames with no ``laser_color`` (grey, the frames' luma): with the laser-off frame
+    grey finds about as much light as red, but red finds it where green and blue find none, so the
+    line says so (rank 0 on the stripe on 0.897 of rows as grey, 0.994 as red)."""
+    assert detect_cli(tmp_path, *frames, ".png") == 0
+    (tmp_path / "session.toml").write_text('laser_mode = "stripe"\n')
+    (tmp_path / "traces.parquet").unlink()
+    capsys.readouterr()
+    assert main(["detect", str(tmp_path)]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        f"warning: cam0: the laser in {tmp_path / 'scan' / 'cam0' / '00000.png'} is red (the other colours find "
+        "none), detected as grey on the frames' luma: use --color red (or laser_color = 'red' in session.toml)"]
+    assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) < 0.95
+
+
 def test_detect_verb_on_the_right_colour_names_no_other(tmp_path, frames, capsys):
     """The real frames with ``laser_color = "red"``: no line about colours (blue and green find
     1/181 and less of red's laser light with the laser-off frame, 1/18 without)."""

@@ -147,6 +147,39 @@ def colour_shown(image: np.ndarray, color: str, found_with: Callable[[str], floa
     return best
 
 
+def one_colour(image: np.ndarray, found_with: Callable[[str], float]) -> str | None:
+    """The colour of a colour frame's laser when one colour finds far more of it than the others.
+
+    A laser asked for as grey is detected on the frame's luma, which holds every channel: a red
+    laser's stripe shows there too, but with the scene's texture at full weight and the colour
+    channels' crosstalk unused (the Ciclop bust with its laser-off frame: rank 0 on the stripe on
+    90 % of rows as grey, 99 % as red). :func:`colour_shown` cannot tell, as grey finds about as
+    much light as the laser's own colour; the colours among themselves can.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        The frame, DN.
+    found_with : callable
+        As for :func:`colour_shown`; called for red, green and blue once each.
+
+    Returns
+    -------
+    str or None
+        The colour that finds more than ``FEWER_FACTOR`` times the light of each of the two others;
+        None for a grey frame, or when none does (a white laser).
+    """
+    if image.ndim != 3 or equal_channels(image):
+        return None
+    comparing = _COMPARING.set(True)
+    try:
+        found = {colour: found_with(colour) for colour in CHANNEL_COLOURS}
+    finally:
+        _COMPARING.reset(comparing)
+    best = max(found, key=found.get)
+    return best if all(found[best] > FEWER_FACTOR * light for colour, light in found.items() if colour != best) else None
+
+
 def colour_advice(colour: str) -> str:
     """How to ask for ``colour``: ``"use --color red (or laser_color = 'red' in session.toml)"``."""
     return f"use --color {colour} (or laser_color = {colour!r} in session.toml)"

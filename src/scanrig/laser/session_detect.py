@@ -35,7 +35,7 @@ from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
 from scanrig.laser.bright_scene import BrightSceneWarning
 from scanrig.laser.channels import LASER_COLORS
-from scanrig.laser.colour_check import colour_advice, colour_shown
+from scanrig.laser.colour_check import CHANNEL_COLOURS, colour_advice, colour_shown, one_colour
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
@@ -419,6 +419,13 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
             continue  # another colour's white cores are no evidence
         with _bright_scene_caught():
             best = colour_shown(image, options.color, light_with, least=0.0)
+            laser = one_colour(image, light_with) if best is None and options.color == "grey" else None
+        if laser is not None:
+            others = max(light_with(colour) for colour in CHANNEL_COLOURS if colour != laser)
+            how = ("the other colours find none" if others == 0 else
+                   f"{light_with(laser) / others:.0f} times the light of the other colours")
+            lines.append(f"{camera}: the laser in {paths[stem]} is {laser} ({how}), detected as grey on the "
+                         f"frames' luma: {colour_advice(laser)}")
         if best is None:
             continue
         what = (f"no {options.color} laser in {paths[stem]}" if light_with(options.color) == 0 else
