@@ -62,6 +62,17 @@ def test_a_wrong_laser_colour_is_named_though_it_finds_centres_on_the_board(tmp_
     assert sorted(p.name for p in root.iterdir()) == before
 
 
+def test_a_red_laser_asked_for_as_grey_is_named(tmp_path, capsys):
+    """No laser colour (grey, the image's luma): the board's print is fitted at full weight (the
+    right-hand laser's points scatter 16.7 mm about the maker's plane as grey, 0.06 mm as red), so
+    the lines say which colour the stripe is."""
+    root = ciclop_session(tmp_path)
+    (root / "session.toml").write_text('cameras = ["cam0"]\nlaser_mode = "stripe"\n')
+    assert main(["calibrate", str(root), "--light-plane", "--no-cross-validate", "--no-plots"]) == 2
+    assert ("; 100.png: the stripe is red, detected as grey on the image's luma: use --color red (or laser_color = "
+            "'red' in session.toml)") in capsys.readouterr().err
+
+
 def test_intrinsics_left_open_by_their_own_folder_say_to_add_views_there(tmp_path, capsys):
     """Three Ciclop views in calibration_intrinsic/cam0/ do not fix the intrinsics: the advice is
     to add views there, not to calibrate them separately (which that folder already is)."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from scanrig.errors import FileFormatError, InputError
 from scanrig.io.session import read_image
-from scanrig.laser.colour_check import colour_advice, colour_shown
+from scanrig.laser.colour_check import colour_advice, colour_shown, one_colour
 from scanrig.reconstruct.light_plane import intersect_plane, plane_from, with_sampled_uncertainty
 from scanrig.reconstruct.light_plane_fit import LightPlaneFit, fit_light_plane
 
@@ -217,12 +217,14 @@ def calibrate_light_plane_images(camera, target, poses: list[LightPlanePose], co
         hint = "" if first is None else _colour_hint(camera, target, color, *first)
         raise InputError(f"{folder}: no laser stripe found on the target in any of {len(poses)} image(s) with "
                          f"laser colour {color!r}{hint}")
+    # the pose with the most stripe points: a wrong colour still finds junk on every pose
+    pose, _, _ = max(used, key=lambda entry: len(entry[1]))
     if color != "grey":
-        # the pose with the most stripe points: a wrong colour still finds junk on every pose
-        pose, _, _ = max(used, key=lambda entry: len(entry[1]))
         hint = _colour_hint(camera, target, color, pose, *_pose_frames(pose, camera)[:2])
         if hint:
             raise InputError(f"{folder}: {pose.image_path.name} shows little {color} laser light on the target{hint}")
+    else:
+        notes += _grey_note(camera, target, pose, *_pose_frames(pose, camera)[:2])
     if len(points) < 2:
         raise InputError("; ".join([f"{folder}: the stripe on the target was found in {len(points)} usable pose(s); "
                                     f"at least 2 are needed (6 or more at different distances and tilts)",
@@ -270,6 +272,22 @@ def _light(peak: np.ndarray) -> float:
     """The laser light of one pose's stripe centres on the target, DN: their fitted peaks ``(n,)``
     summed (0 with fewer than ``MIN_POSE_POINTS``)."""
     return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
+
+
+def _grey_note(camera, target, pose: LightPlanePose, image: np.ndarray, dark) -> list[str]:
+    """``["lp03.png: the stripe is red, detected as grey ...: use --color red ..."]`` when one colour
+    finds far more of a colour image's laser light on the target than each other colour
+    (:func:`~scanrig.laser.colour_check.one_colour`), else ``[]``.
+
+    Detected as grey, on the image's luma, the stripe is fitted among the print's edges at full
+    weight: on the real Ciclop board the right-hand laser's points scatter 16.7 mm about the
+    maker's plane (robust sigma) as grey, 0.06 mm as red."""
+    def light(colour: str) -> float:
+        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour, None)[2])
+
+    laser = one_colour(image, light)
+    return [] if laser is None else [f"{pose.image_path.name}: the stripe is {laser}, detected as grey on the "
+                                     f"image's luma: {colour_advice(laser)}"]
 
 
 def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.ndarray, dark) -> str:
