@@ -256,6 +256,17 @@ def checked_detection(detect: Callable, color: str, stripes: bool, k_detect: flo
     return table
 
 
+class LaserColourError(InputError):
+    """A colour frame's laser shows in another channel than the requested colour's
+    (:func:`check_laser_colour`): ``shown`` is that colour, ``times`` how many times the requested
+    colour's laser light it finds (``inf`` where that colour finds none)."""
+
+    def __init__(self, message: str, shown: str, times: float):
+        super().__init__(message)
+        self.shown = shown
+        self.times = times
+
+
 def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bool, k_detect: float) -> None:
     """Raise when a colour frame's laser shows in another channel than ``color``'s.
 
@@ -293,7 +304,7 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
 
     Raises
     ------
-    InputError
+    LaserColourError
         ``"color='red': no red laser in this frame; its blue channel shows one (103454 DN of laser
         light): use color='blue' (red and blue are swapped where RGB data were stored as BGR)"``;
         the part in brackets only for red and blue.
@@ -321,8 +332,9 @@ def check_laser_colour(li, color: str, table, detect_with: Callable, stripes: bo
                 f"{color} finds {light(best) / found:.0f} times less laser light than {best} in this frame")
         swapped = (" (red and blue are swapped where RGB data were stored as BGR)"
                    if {color, best} == {"red", "blue"} else "")
-        raise InputError(f"color={color!r}: {what}; its {best} channel shows one ({light(best):.0f} DN of laser "
-                         f"light): use color={best!r}{swapped}")
+        raise LaserColourError(f"color={color!r}: {what}; its {best} channel shows one ({light(best):.0f} DN of "
+                               f"laser light): use color={best!r}{swapped}", best,
+                               light(best) / found if found else float("inf"))
 
 
 class ClippedCandidates(NamedTuple):

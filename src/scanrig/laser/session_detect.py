@@ -35,7 +35,7 @@ from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
 from scanrig.laser.bright_scene import BrightSceneWarning
 from scanrig.laser.channels import LASER_COLORS
-from scanrig.laser.colour_check import CHANNEL_COLOURS, colour_advice, colour_shown, one_colour
+from scanrig.laser.colour_check import CHANNEL_COLOURS, LaserColourError, colour_advice, colour_shown, one_colour
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
@@ -259,7 +259,7 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
 
 
 def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, camera: str = "",
-                 frame: str = "") -> pa.Table:
+                 frame: str = "", check_color: bool = False) -> pa.Table:
     """The candidates of one frame with the session's options.
 
     A frame whose three channels are equal (and its laser-off frame's) is detected as the grey
@@ -274,11 +274,19 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     options : DetectOptions
     camera, frame : str
         Written into every row.
+    check_color : bool
+        Run the detectors' own check of the laser's colour (the session compares the colours once
+        per camera instead, :func:`colour_mismatches`).
 
     Returns
     -------
     pyarrow.Table
         ``traces.parquet`` rows.
+
+    Raises
+    ------
+    LaserColourError
+        With ``check_color``, as :func:`~scanrig.laser.colour_check.check_laser_colour`.
 
     Warns
     -----
@@ -288,13 +296,11 @@ def detect_frame(image: np.ndarray, dark: np.ndarray | None, options: DetectOpti
     from scanrig.laser.spots import detect_spots
     from scanrig.laser.stripes import detect_stripe
 
-    # The session compares the colours once per camera (colour_mismatches), naming the camera:
-    # the library's check of every frame is not needed here.
     detect, scan = (detect_spots, {}) if options.mode == "spot" else (detect_stripe, {"direction": options.direction})
     with _bright_scene_caught() as messages:
         table = detect(image, color=options.color, dark=dark, roi=options.roi, k_detect=options.k_detect,
                        saturation_level=options.saturation_level, camera=camera, frame=frame,
-                       check_color=False, **scan)
+                       check_color=check_color, **scan)
     for message in messages:
         warnings.warn(BrightSceneWarning(f"camera {camera!r} frame {frame!r}: {message}"), stacklevel=2)
     return table
@@ -375,15 +381,17 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
     """One line per camera whose frames show a laser of another colour than ``options.color``.
 
     Each camera's frame where ``options.color`` found the most laser light (its middle frame where
-    it found none) is detected again, with its laser-off frame if any (its own, else the camera's),
-    in red, green and blue; a colour that finds more than
-    :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times the light (:func:`_laser_light`; with a
-    rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan lines) is named
-    (:func:`~scanrig.laser.colour_check.colour_shown`). Grey frames are not
-    checked, nor a frame whose scene reaches the requested colour's clip level
-    (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`, issued by the detection): that colour finds
-    little there whatever the laser's, and another colour finds the white core of a beam of any
-    colour. Costs three or four detections of one frame per colour camera.
+    it found none) is detected again, with its laser-off frame if any (its own, else the camera's).
+    A colour laser is checked as the detectors check it (:func:`_detector_line`), and the colour
+    that check names is named. A grey laser's frame is detected in red, green and blue too: a
+    colour that finds more than :data:`~scanrig.laser.colour_check.FEWER_FACTOR` times grey's light
+    (:func:`_laser_light`; with a rank-0 stripe candidate on at least ``_LEAST_STRIPE_LINES`` scan
+    lines) is named (:func:`~scanrig.laser.colour_check.colour_shown`), else one that finds more
+    than that factor times the light of each other colour
+    (:func:`~scanrig.laser.colour_check.one_colour`), unless grey's scene reaches the clip level
+    (:class:`~scanrig.laser.bright_scene.BrightSceneWarning`, issued by the detection), where the
+    white core of a beam of any colour shows in every colour. Grey frames are not checked. Costs
+    one to four detections of one frame per colour camera.
 
     Parameters
     ----------
@@ -408,31 +416,61 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         paths = session.image_paths("scan", camera)
         found = {frame: total for (cam, frame), total in light.items() if cam == camera}
         stem = max(found, key=found.get) if found else list(paths)[len(paths) // 2]
-        image = read_image(paths[stem])
         dark_path = session.frame_dark_paths(camera).get(stem, session.dark_path(camera))
-        light_with = functools.cache(functools.partial(_frame_light, image,
-                                                       None if dark_path is None else read_image(dark_path), options))
-        # the frames' own BrightSceneWarning was issued by the detection: none again here
-        with _bright_scene_caught() as messages:
-            light_with(options.color)
-        if messages:  # the requested colour finds little whatever the laser's:
-            continue  # another colour's white cores are no evidence
-        with _bright_scene_caught():
-            best = colour_shown(image, options.color, light_with, least=0.0)
-            laser = one_colour(image, light_with) if best is None and options.color == "grey" else None
-        if laser is not None:
-            others = max(light_with(colour) for colour in CHANNEL_COLOURS if colour != laser)
-            how = ("the other colours find none" if others == 0 else
-                   f"{light_with(laser) / others:.0f} times the light of the other colours")
-            lines.append(f"{camera}: the laser in {paths[stem]} is {laser} ({how}), detected as grey on the "
-                         f"frames' luma: {colour_advice(laser)}")
-        if best is None:
-            continue
-        what = (f"no {options.color} laser in {paths[stem]}" if light_with(options.color) == 0 else
-                f"{options.color} finds {light_with(best) / light_with(options.color):.0f} times less laser light "
-                f"than {best} in {paths[stem]}")
-        lines.append(f"{camera}: {what}; the frames show a {best} one: {colour_advice(best)}")
+        line = _colour_line(camera, paths[stem], read_image(paths[stem]),
+                            None if dark_path is None else read_image(dark_path), options)
+        lines += [line] if line else []
     return lines
+
+
+def _colour_line(camera: str, path: Path, image: np.ndarray, dark: np.ndarray | None,
+                 options: DetectOptions) -> str | None:
+    """:func:`colour_mismatches`' line for the frame ``path`` of ``camera`` (its image and laser-off
+    frame), or None."""
+    if options.color != "grey":
+        return _detector_line(camera, path, image, dark, options)
+    light_with = functools.cache(functools.partial(_frame_light, image, dark, options))
+    # the frames' own BrightSceneWarning was issued by the detection: none again here
+    with _bright_scene_caught() as messages:
+        light_with(options.color)
+    if messages:  # grey finds little whatever the laser's:
+        return None  # a colour's white cores are no evidence
+    with _bright_scene_caught():
+        best = colour_shown(image, options.color, light_with, least=0.0)
+        if best is not None:
+            what = (f"no grey laser in {path}" if light_with("grey") == 0 else
+                    f"grey finds {light_with(best) / light_with('grey'):.0f} times less laser light than {best} in "
+                    f"{path}")
+            return f"{camera}: {what}; the frames show a {best} one: {colour_advice(best)}"
+        laser = one_colour(image, light_with)
+    if laser is None:
+        return None
+    others = max(light_with(colour) for colour in CHANNEL_COLOURS if colour != laser)
+    how = ("the other colours find none" if others == 0 else
+           f"{light_with(laser) / others:.0f} times the light of the other colours")
+    return (f"{camera}: the laser in {path} is {laser} ({how}), detected as grey on the frames' luma: "
+            f"{colour_advice(laser)}")
+
+
+def _detector_line(camera: str, path: Path, image: np.ndarray, dark: np.ndarray | None,
+                   options: DetectOptions) -> str | None:
+    """The line for a colour laser: the colour the detectors' own check names
+    (:func:`~scanrig.laser.colour_check.check_laser_colour`), or None.
+
+    That check counts only candidates of at least half the clip level, and a clipped one in its
+    own colour whatever its fitted peak; the peaks summed over every scan line
+    (:func:`_frame_light`) do not tell a beam clipped far past full scale, whose colour difference
+    is small in its white core, from texture: without a laser-off frame, green finds twice red's
+    summed peaks on the rendered red stripe 8 times past full scale, and with red clipped at
+    217 DN by white balance red finds a third of green's."""
+    try:
+        with _bright_scene_caught():  # the frames' own were issued by the detection: none again here
+            detect_frame(image, dark, options, check_color=True)
+    except LaserColourError as exc:
+        what = (f"no {options.color} laser in {path}" if exc.times == float("inf") else
+                f"{options.color} finds {exc.times:.0f} times less laser light than {exc.shown} in {path}")
+        return f"{camera}: {what}; the frames show a {exc.shown} one: {colour_advice(exc.shown)}"
+    return None
 
 
 def _frame_light(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, colour: str) -> float:
