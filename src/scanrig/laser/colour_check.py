@@ -177,7 +177,8 @@ def one_colour(image: np.ndarray, found_with: Callable[[str], float]) -> str | N
     finally:
         _COMPARING.reset(comparing)
     best = max(found, key=found.get)
-    return best if all(found[best] > FEWER_FACTOR * light for colour, light in found.items() if colour != best) else None
+    far_more = all(found[best] > FEWER_FACTOR * light for colour, light in found.items() if colour != best)
+    return best if far_more else None
 
 
 def colour_advice(colour: str) -> str:

@@ -274,6 +274,15 @@ def _light(peak: np.ndarray) -> float:
     return float(np.clip(peak, 0.0, None).sum()) if peak.size >= MIN_POSE_POINTS else 0.0
 
 
+def _light_with(camera, target, pose: LightPlanePose, image: np.ndarray, dark):
+    """``light(colour) -> float``: the laser light (:func:`_light`) that ``colour`` finds on the target
+    in one pose's image, with every channel clipped at the dtype's maximum (see :func:`_colour_hint`)."""
+    def light(colour: str) -> float:
+        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour, None)[2])
+
+    return light
+
+
 def _grey_note(camera, target, pose: LightPlanePose, image: np.ndarray, dark) -> list[str]:
     """``["lp03.png: the stripe is red, detected as grey ...: use --color red ..."]`` when one colour
     finds far more of a colour image's laser light on the target than each other colour
@@ -282,10 +291,7 @@ def _grey_note(camera, target, pose: LightPlanePose, image: np.ndarray, dark) ->
     Detected as grey, on the image's luma, the stripe is fitted among the print's edges at full
     weight: on the real Ciclop board the right-hand laser's points scatter 16.7 mm about the
     maker's plane (robust sigma) as grey, 0.06 mm as red."""
-    def light(colour: str) -> float:
-        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour, None)[2])
-
-    laser = one_colour(image, light)
+    laser = one_colour(image, _light_with(camera, target, pose, image, dark))
     return [] if laser is None else [f"{pose.image_path.name}: the stripe is {laser}, detected as grey on the "
                                      f"image's luma: {colour_advice(laser)}"]
 
@@ -303,8 +309,5 @@ def _colour_hint(camera, target, color: str, pose: LightPlanePose, image: np.nda
     stripe in its colour only (on the real Ciclop board, whose red clips at 180 DN, red over blue
     would fall from 3.39 to 2.93 times).
     """
-    def light(colour: str) -> float:
-        return _light(_stripe_on_target(camera, target, pose.world_from_target, image, dark, colour, None)[2])
-
-    best = colour_shown(image, color, light, least=np.finfo(float).tiny)
+    best = colour_shown(image, color, _light_with(camera, target, pose, image, dark), least=np.finfo(float).tiny)
     return "" if best is None else f"; the images show a {best} stripe: {colour_advice(best)}"
