@@ -365,13 +365,16 @@ def write_frame(path: Path, rgb: np.ndarray) -> None:
     assert cv2.imwrite(str(path), rgb, params)
 
 
-def detect_cli(root: Path, on: np.ndarray, off: np.ndarray, suffix: str, color: str = "red") -> int:
-    """``scanrig detect`` on a session of one camera: ``scan/cam0/00000<suffix>`` and its ``dark``."""
+def detect_cli(root: Path, on: np.ndarray, off: np.ndarray | None, suffix: str, color: str | None = "red") -> int:
+    """``scanrig detect`` on a session of one camera: ``scan/cam0/00000<suffix>`` and its ``dark``
+    (none when ``off`` is None), ``laser_color`` ``color`` (none when None)."""
     folder = root / "scan" / "cam0"
     folder.mkdir(parents=True, exist_ok=True)
     write_frame(folder / f"00000{suffix}", on)
-    write_frame(folder / f"dark{suffix}", off)
-    (root / "session.toml").write_text(f'laser_mode = "stripe"\nlaser_color = "{color}"\n')
+    if off is not None:
+        write_frame(folder / f"dark{suffix}", off)
+    colour_line = "" if color is None else f'laser_color = "{color}"\n'
+    (root / "session.toml").write_text('laser_mode = "stripe"\n' + colour_line)
     return main(["detect", str(root)])
 
 
@@ -434,11 +437,7 @@ def test_a_jpeg_channel_clipped_below_255_is_found_from_the_lasers_peaks(tmp_pat
     PNG's."""
     quality, suffix, with_dark = CLIPPED_JPEG[name]
     on, off = (_red_gain(f) if quality is None else jpeg(_red_gain(f), quality) for f in frames)
-    assert detect_cli(tmp_path, on, off, suffix) == 0
-    if not with_dark:
-        (tmp_path / "scan" / "cam0" / f"dark{suffix}").unlink()
-        (tmp_path / "traces.parquet").unlink()
-        assert main(["detect", str(tmp_path)]) == 0
+    assert detect_cli(tmp_path, on, off if with_dark else None, suffix) == 0
     assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) >= baseline[True] - PHOTOMETRIC_MARGIN
 
 
@@ -488,11 +487,8 @@ def test_detect_verb_without_a_laser_colour_names_the_lasers(tmp_path, frames, r
     """The real frames with no ``laser_color`` (grey, the frames' luma): with the laser-off frame
     grey finds about as much light as red, but red finds it where green and blue find none, so the
     line says so (rank 0 on the stripe on 0.897 of rows as grey, 0.994 as red)."""
-    assert detect_cli(tmp_path, *frames, ".png") == 0
-    (tmp_path / "session.toml").write_text('laser_mode = "stripe"\n')
-    (tmp_path / "traces.parquet").unlink()
     capsys.readouterr()
-    assert main(["detect", str(tmp_path)]) == 0
+    assert detect_cli(tmp_path, *frames, ".png", color=None) == 0
     assert capsys.readouterr().err.splitlines() == [
         f"warning: cam0: the laser in {tmp_path / 'scan' / 'cam0' / '00000.png'} is red (the other colours find "
         "none), detected as grey on the frames' luma: use --color red (or laser_color = 'red' in session.toml)"]

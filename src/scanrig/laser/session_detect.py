@@ -244,7 +244,7 @@ def _jobs(session: Session, cameras: list[str], options: DetectOptions, done: se
         paths = session.image_paths("scan", cam)
         dark = session.dark_path(cam)
         own = session.frame_dark_paths(cam)
-        dark_of = {stem: str(own.get(stem, dark)) for stem in paths if own.get(stem, dark) is not None}
+        dark_of = {stem: str(path) for stem in paths if (path := own.get(stem, dark)) is not None}
         todo = [(stem, str(p), dark_of.get(stem)) for stem, p in paths.items() if (cam, stem) not in done]
         if not todo:
             continue
