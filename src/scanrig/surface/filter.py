@@ -264,7 +264,7 @@ def _filter_cloud(points: np.ndarray, *, rng: np.random.Generator, q: float, set
     fits = fitted[0][1] if len(fitted) == 1 else concatenate_fits([part[1] for part in fitted],
                                                                   np.arange(len(charts)))
     uv_scale, z_scale = (np.concatenate([part[i] for part in fitted]) for i in (2, 3))
-    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor,
+    return _blend_outputs(points, normals, charts, fits, uv_scale, z_scale, settings, sigma_floor, rng,
                           point_sigma, sparse=sparse, sparse_outputs=sparse_outputs)
 
 
@@ -400,7 +400,7 @@ def _trusted(charts: list[Chart], sigma_fit: np.ndarray, sigma_ref: float) -> np
 
 def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart], fits: ChartFits,
                    uv_scale: np.ndarray, z_scale: np.ndarray, settings: FitSettings,
-                   sigma_floor: float, point_sigma: np.ndarray | None = None, *,
+                   sigma_floor: float, rng: np.random.Generator, point_sigma: np.ndarray | None = None, *,
                    sparse: np.ndarray | None = None, sparse_outputs: tuple | None = None) -> FilterResult:
     """Blend the per-chart fits into per-point outputs (see :func:`filter_points`).
 
@@ -498,7 +498,7 @@ def _blend_outputs(points: np.ndarray, normals: np.ndarray, charts: list[Chart],
         owned[charts[c].core] = True
     score = np.fmax(score, surroundings_score(points, normals, [charts[c] for c in np.flatnonzero(~trusted & dense)],
                                               owned, np.flatnonzero(owned & ~sparse & (score <= r)), sigma_ref, r,
-                                              workers=torch.get_num_threads()))
+                                              rng=rng, workers=torch.get_num_threads()))
     if sparse_outputs is not None:
         judged = np.flatnonzero(sparse)
         score[judged], residual[judged], sigma[judged] = sparse_outputs
