@@ -64,6 +64,25 @@ def test_the_middle_of_a_blob_far_wider_than_the_neighbourhood_is_flagged_too():
     assert np.mean(score[patch] > R) > 0.9
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_small_part_beside_its_edge_is_not_judged_by_the_floor_a_wider_neighbourhood_reaches(seed):
+    # a small part's face 50 sigma above a floor, noisier than the reference (a face further from
+    # the cameras), its strip along one edge in untrusted charts: the nearest trusted points hold
+    # both the face and the floor, so no smooth surface; a thinning of them reaches only floor,
+    # a smooth fit 50 sigma below the face, which rejected good points of the strip on each of
+    # these seeds when the thinned fits could also decide that a point is judged
+    rng = np.random.default_rng(seed)
+    g = np.linspace(-1, 1, 200)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    z = 0.2 * x + rng.normal(0, SIGMA, x.size)
+    face = (x > 0.2) & (x < 0.3) & (np.abs(y) < 0.05)
+    z[face] += 50 * SIGMA + rng.normal(0, 3 * SIGMA, face.sum())
+    points = np.column_stack([x, y, z])
+    strip = np.flatnonzero(face & (x > 0.26))
+    score = _score_patch(points, estimate_normals(points), strip, pieces=2)
+    assert not np.any(score[strip] > R)
+
+
 def test_the_charts_are_judged_alike_on_one_thread_or_several():
     rng = np.random.default_rng(2)
     points, normals, patch = _plane_with_patch(rng, lambda n: rng.uniform(5 * SIGMA, 30 * SIGMA, n))

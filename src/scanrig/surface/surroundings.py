@@ -36,11 +36,16 @@ score of a point 10 noise scales off falls below ``r``). So the quadratic is als
 ``k`` nearest of random thinnings of the trusted points, to one in 4, 16, ... 1024
 (``THINNING_LEVELS``), whose neighbourhoods are 4, 16, ... times wider and reach round the
 blob; each point is scored by the fit of least ``g`` among those that pass the surface test.
-The test whether a chart's points form a surface keeps the nearest fit's frame (the normal of
-the surface next to the chart). ``benchmarks/bench_filter.py --timing-only``, seed 0: recall of
-the >= 5 sigma outliers 0.936 -> 0.964 on 100 000 points and 0.884 -> 0.977 on the million
-points (blobs of radius ~0.35 m, 35 spacings), inlier false rejections unchanged (0.0011,
-0.0007); about 8 s more on the million points' ~370 s.
+Which points are judged is still decided by the nearest fit alone: it must pass the surface
+test, and the test whether a chart's points form a surface keeps its frame (the normal of the
+surface next to the chart). A thinned neighbourhood can reach another surface: on the demo's
+cloud, points of a part's face whose nearest trusted points straddle its edge (nearest fit 40-60
+noise scales rough, so never judged) met a smooth fit through the floor 700 noise scales away
+and were rejected when the thinned fits could also decide that a point is judged.
+``benchmarks/bench_filter.py --timing-only``, seed 0: recall of the >= 5 sigma outliers 0.936 ->
+0.960 on 100 000 points and 0.884 -> 0.950 on the million points (blobs of radius ~0.35 m, 35
+spacings), inlier false rejections unchanged (0.0011, 0.0007); about 8 s more on the million
+points' ~370 s.
 """
 
 from __future__ import annotations
@@ -116,7 +121,7 @@ def surroundings_score(points: np.ndarray, normals: np.ndarray, charts: list[Cha
     with ThreadPoolExecutor(max(1, workers)) as pool:  # numpy and SciPy release the GIL inside
         for i, chart_is_rough in zip(tested, pool.map(chart_rough, tested)):
             rough[cores[i]] = chart_is_rough
-    judged = rough[candidates] & (best.spread <= SURFACE_SCALE_FACTOR * sigma_ref)
+    judged = rough[candidates] & (nearest.spread <= SURFACE_SCALE_FACTOR * sigma_ref)
     score[candidates[judged]] = np.abs(best.height[judged]) / (sigma_ref * np.sqrt(1.0 + best.g[judged]))
     return score
 
