@@ -67,7 +67,14 @@ def test_turntable_scan_from_the_cli_matches_the_true_surface(tmp_path, capsys):
     scene = _half_scale_scene(tmp_path)
     assert main(["simulate", str(session), "--rig", "turntable", "--scene", str(scene), "--frames", str(N_FRAMES),
                  "--no-calibration", "--seed", "3", "--workers", "1"]) == 0
-    assert not list((session / "scan" / "cam0").glob("dark.*"))  # the object moves: no laser-off frame
+    # the object moves: no laser-off frame for the camera, one per frame instead, that frame
+    # without the laser (their difference is noise but on the stripe)
+    assert not list((session / "scan" / "cam0").glob("dark.*"))
+    frames = sorted((session / "scan" / "cam0").glob("*.png"))
+    assert [p.name for p in sorted((session / "scan" / "cam0" / "dark").glob("*.png"))] == [p.name for p in frames]
+    laser = read_image(frames[0]).astype(float) - read_image(session / "scan" / "cam0" / "dark" / frames[0].name)
+    assert np.mean(np.abs(laser) > 3) < 0.01  # the dim room's noise: 0-1 DN on 99 % of the pixels
+    assert laser.max() > 30  # the stripe: 86 DN
     assert len(read_object_poses(session / "scan" / "object_poses.csv")) == N_FRAMES
     assert load_light_plane(session / "truth" / "light_plane.toml")[1] == "cam0"
     assert main(["detect", str(session), "--k-detect", "15"]) == 0

@@ -12,8 +12,8 @@ Placement (world frame, metres): the camera is the scene's default single camera
 
 Every frame is rendered with the object at its pose (background included, so each frame costs
 a full render; the multi-camera sessions of :mod:`scanrig.sim.session_writer` render their
-background once). No laser-off ``dark`` frame is written: the object moves, so one laser-off
-image does not match the other frames.
+background once). Every frame has its own laser-off frame, as Horus takes one at every step: the
+object moves, so one laser-off image for the whole scan would match no frame.
 """
 
 from __future__ import annotations
@@ -117,8 +117,9 @@ def posed_scene(scene: Scene, world_from_object: RigidTransform) -> Scene:
 
 
 def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: RigidTransform,
-                           table: PixelRayTable, rng: np.random.Generator):
-    """One noisy laser frame with the object at ``world_from_object``.
+                           table: PixelRayTable, rng: np.random.Generator, dark_rng: np.random.Generator):
+    """One noisy laser frame with the object at ``world_from_object``, and the same pose with the
+    laser off.
 
     Parameters
     ----------
@@ -130,11 +131,15 @@ def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: R
         The camera's ray table (shared by all frames).
     rng : numpy.random.Generator
         Speckle and sensor noise of this frame.
+    dark_rng : numpy.random.Generator
+        Sensor noise of its laser-off frame.
 
     Returns
     -------
     image : ndarray of shape (H, W)
         The frame, DN.
+    dark : ndarray of shape (H, W)
+        The laser-off frame (same pose and exposure), DN.
     trace : LaserTrace
         The laser's hits (world frame) in this frame.
     """
@@ -145,7 +150,7 @@ def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: R
     window = view.laser_window(trace, rng)
     if window is not None:
         electrons[window.slices] += window.electrons
-    return view.sensor.expose(electrons, rng), trace
+    return view.sensor.expose(electrons, rng), view.sensor.expose(view.background_e.copy(), dark_rng), trace
 
 
 def write_laser_on_calibration_poses(out: Path, scene: Scene, rig: TurntableRig, shots: dict, rng: np.random.Generator,
@@ -215,7 +220,8 @@ def simulate_turntable_session(
 
     Written files (besides the layout of DESIGN.md §4)::
 
-        scan/cam0/<frame>.png        one frame per turntable angle (no dark frame: the object moves)
+        scan/cam0/<frame>.png        one frame per turntable angle
+        scan/cam0/dark/<frame>.png   its laser-off frame (the object moves: one per frame)
         scan/object_poses.csv        world_from_object of every frame (the turntable's angles)
         calibration/cam0/<shot>.png, target.toml   (with_calibration; shot 000 at the world origin,
                                      so the calibrated world is the scene's)
@@ -275,10 +281,11 @@ def simulate_turntable_session(
     provenance = dict(provenance or {})
     frame_rngs = rng.spawn(n_frames)
     calib_rng, light_rng = rng.spawn(2)   # children are keyed by index: adding one keeps the others
+    dark_rngs = rng.spawn(n_frames)
 
     name = rig.camera.name
     truth = out / "truth"
-    for folder in (truth / "meshes", out / "scan" / name):
+    for folder in (truth / "meshes", out / "scan" / name / "dark"):
         folder.mkdir(parents=True, exist_ok=True)
     if with_calibration:
         from scanrig.sim.calibration_shots import write_calibration
@@ -295,8 +302,9 @@ def simulate_turntable_session(
     table.xy  # noqa: B018 - solve the camera's rays once, before forking
 
     def render_one(i: int):
-        image, trace = render_turntable_frame(rig, scene, poses[stems[i]], table, frame_rngs[i])
+        image, dark, trace = render_turntable_frame(rig, scene, poses[stems[i]], table, frame_rngs[i], dark_rngs[i])
         write_image(out / "scan" / name / f"{stems[i]}.png", image)
+        write_image(out / "scan" / name / "dark" / f"{stems[i]}.png", dark)
         return trace.truth_kind, trace.truth_points
 
     truth_rows = run_indexed(render_one, n_frames, workers, lambda done: progress("frames", done, n_frames))
