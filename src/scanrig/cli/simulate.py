@@ -33,8 +33,9 @@ def command(
     and truth/ (rig.toml, meshes, frames.csv, laser.csv, target_poses.csv). The same seed gives
     identical files. A folder that is not empty is refused unless --force is given; --force
     replaces only the files simulate writes and names the files it kept. With --rig turntable (--cameras and --mode do not apply): one camera cam0, a
-    fixed laser sheet, scan/object_poses.csv, light_plane/cam0/<shot>.png (every calibration pose
-    with the laser on), truth/light_plane.toml and meshes in the object frame.
+    fixed laser sheet, scan/cam0/dark/<frame>.png (each step's laser-off frame), scan/object_poses.csv,
+    light_plane/cam0/<shot>.png (every calibration pose with the laser on), truth/light_plane.toml and
+    meshes in the object frame.
     A scene with a colour camera ([camera] color = true, e.g. --scene colour_stripe) writes RGB
     images, .jpg when its jpeg_quality is set.
 
