@@ -39,9 +39,9 @@ blob; each point is scored by the fit of least ``g`` among those that pass the s
 Which points are judged is still decided by the nearest fit alone: it must pass the surface
 test, and the test whether a chart's points form a surface keeps its frame (the normal of the
 surface next to the chart). A thinned neighbourhood can reach another surface: on the demo's
-cloud, points of a part's face whose nearest trusted points straddle its edge (nearest fit 40-60
-noise scales rough, so never judged) met a smooth fit through the floor 700 noise scales away
-and were rejected when the thinned fits could also decide that a point is judged.
+cloud, 13 good points of a part's face whose nearest trusted points straddle its edge (a nearest
+fit 40-60 noise scales rough) have a smooth thinned fit through the floor 700 noise scales away,
+and would be rejected if that fit could decide that they are judged.
 ``benchmarks/bench_filter.py --timing-only``, seed 0: recall of the >= 5 sigma outliers 0.936 ->
 0.960 on 100 000 points and 0.884 -> 0.950 on the million points (blobs of radius ~0.35 m, 35
 spacings), inlier false rejections unchanged (0.0011, 0.0007); about 8 s more on the million
