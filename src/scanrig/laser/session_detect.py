@@ -438,10 +438,8 @@ def _colour_line(camera: str, path: Path, image: np.ndarray, dark: np.ndarray | 
     with _bright_scene_caught():
         best = colour_shown(image, options.color, light_with, least=0.0)
         if best is not None:
-            what = (f"no grey laser in {path}" if light_with("grey") == 0 else
-                    f"grey finds {light_with(best) / light_with('grey'):.0f} times less laser light than {best} in "
-                    f"{path}")
-            return f"{camera}: {what}; the frames show a {best} one: {colour_advice(best)}"
+            times = light_with(best) / light_with("grey") if light_with("grey") else float("inf")
+            return _other_colour_line(camera, path, "grey", best, times)
         laser = one_colour(image, light_with)
     if laser is None:
         return None
@@ -467,10 +465,16 @@ def _detector_line(camera: str, path: Path, image: np.ndarray, dark: np.ndarray 
         with _bright_scene_caught():  # the frames' own were issued by the detection: none again here
             detect_frame(image, dark, options, check_color=True)
     except LaserColourError as exc:
-        what = (f"no {options.color} laser in {path}" if exc.times == float("inf") else
-                f"{options.color} finds {exc.times:.0f} times less laser light than {exc.shown} in {path}")
-        return f"{camera}: {what}; the frames show a {exc.shown} one: {colour_advice(exc.shown)}"
+        return _other_colour_line(camera, path, options.color, exc.shown, exc.times)
     return None
+
+
+def _other_colour_line(camera: str, path: Path, asked: str, shown: str, times: float) -> str:
+    """``"cam0: red finds 5 times less laser light than green in <path>; the frames show a green one:
+    use --color green ..."``; ``times`` is ``inf`` where ``asked`` finds none."""
+    what = (f"no {asked} laser in {path}" if times == float("inf") else
+            f"{asked} finds {times:.0f} times less laser light than {shown} in {path}")
+    return f"{camera}: {what}; the frames show a {shown} one: {colour_advice(shown)}"
 
 
 def _frame_light(image: np.ndarray, dark: np.ndarray | None, options: DetectOptions, colour: str) -> float:

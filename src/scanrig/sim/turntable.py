@@ -150,7 +150,7 @@ def render_turntable_frame(rig: TurntableRig, scene: Scene, world_from_object: R
     window = view.laser_window(trace, rng)
     if window is not None:
         electrons[window.slices] += window.electrons
-    return view.sensor.expose(electrons, rng), view.sensor.expose(view.background_e.copy(), dark_rng), trace
+    return view.sensor.expose(electrons, rng), view.sensor.expose(view.background_e, dark_rng), trace
 
 
 def write_laser_on_calibration_poses(out: Path, scene: Scene, rig: TurntableRig, shots: dict, rng: np.random.Generator,
