@@ -7,8 +7,10 @@ laser 8 × past full scale on paper, crosstalk 7 % / 5 % into green / blue, a su
 (30 % of the light, 3 px), Bayer demosaicing and JPEG quality 90 (4:2:0); 640 × 480 for accuracy,
 1920 × 1080 for speed. Next to scanrig, in the same run, the baseline of Horus and FabScan: per
 row, the 7-pixel centre of gravity of ``red − (green + blue) / 2`` (laser-off frame subtracted
-where there is one) around the row's maximum. The speed section also times the candidate search
-alone (``max_per_line=0``: nothing is fitted).
+where there is one) around the row's maximum. Then the same set with one frame of the pair at
+another exposure (automatic exposure or white balance), next to the laser-off frame subtracted as
+it is. The speed section also times the candidate search alone (``max_per_line=0``: nothing is
+fitted).
 
 Real frames (``tests/data/ciclop-laser-stripes``, CC BY-SA 4.0): a Ciclop scanner's webcam, a red
 line laser on a white bust; rank 0 is counted on the stripe when within 6 px of the row's
@@ -28,7 +30,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
+from unittest import mock  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -36,9 +40,11 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.data_paths import real_data  # noqa: E402
 from tests.laser import ciclop_board as board  # noqa: E402
-from tests.laser.colour_synth import stripe_frames  # noqa: E402
+from tests.laser.colour_synth import exposed, stripe_frames  # noqa: E402
 
 from scanrig.io.session import read_image  # noqa: E402
+from scanrig.laser import image  # noqa: E402
+from scanrig.laser.bright_scene import BrightSceneWarning  # noqa: E402
 from scanrig.laser.stripes import detect_stripe  # noqa: E402
 
 EDGE_ROWS = 8
@@ -113,6 +119,34 @@ def accuracy(seeds) -> None:
               f"{np.mean(np.concatenate(any_rank)):12.3f}")
     print("  z = robust spread (MAD) of error / reported sigma over rows within 0.5 px; target 0.7-1.4")
     print("  any <0.5px = rows with a candidate of any rank within 0.5 px: the most a ranking can reach")
+
+
+#: Gains of one frame of the pair (DN times the gain, clipped pixels still clipped).
+GAINS = (0.7, 0.8, 0.9, 1.1, 1.25, 1.5)
+
+
+def exposure(seeds) -> None:
+    """Rank 0 within 0.5 px with one frame of the rendered pair at another exposure, the laser-off
+    frame matched (scanrig) and subtracted as it is (the baseline: exposure matching switched off)."""
+    frames = [stripe_frames(np.random.default_rng(seed)) for seed in seeds]
+
+    def share(on_gain, off_gain):
+        rows = slice(EDGE_ROWS, -EDGE_ROWS)
+        within = [np.abs(rank0_by_row(detect_stripe(exposed(on, on_gain), color="red", dark=exposed(off, off_gain)),
+                                      on.shape[0])[0] - truth)[rows] < 0.5 for on, off, truth in frames]
+        return np.mean(np.concatenate(within))
+
+    print(f"\nOne frame of the rendered pair at another exposure (640x480, seeds {seeds.start}-{seeds.stop - 1}): "
+          f"rank 0 within 0.5 px, {share(1.0, 1.0):.3f} at one exposure")
+    print(f"  {'gain of':34}" + "".join(f"{'x' + format(g, 'g'):>8}" for g in GAINS))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrightSceneWarning)  # the laser-on frame at x 1.5 clips the paper
+        for which in ("laser-off frame", "laser-on frame"):
+            for label, matched in (("matched", True), ("subtracted as it is", False)):
+                with mock.patch.object(image, "exposure_matched", image.exposure_matched if matched
+                                       else lambda frame, dark: dark):
+                    shares = [share(*((1.0, g) if which == "laser-off frame" else (g, 1.0))) for g in GAINS]
+                print(f"  {which + ', ' + label:34}" + "".join(f"{x:8.3f}" for x in shares))
 
 
 def speed(reps: int) -> None:
@@ -210,6 +244,7 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=5)
     args = parser.parse_args()
     accuracy(range(args.seeds))
+    exposure(range(args.seeds))
     speed(args.reps)
     ciclop()
 

@@ -120,3 +120,10 @@ def spot_frames(rng: np.random.Generator, shape=(480, 640), overexposure: float 
     on = colour_frame(scene_e, laser_e, sensor, response, rng)
     off = colour_frame(scene_e, np.zeros(shape), sensor, response, rng)
     return on, off, centres
+
+
+def exposed(frame: np.ndarray, gain) -> np.ndarray:
+    """``frame`` (uint8) as taken at ``gain`` (scalar, or one per channel) times the exposure: its DN
+    times the gain, rounded, within 0-255, its clipped pixels (255) still clipped."""
+    scaled = np.clip(np.rint(frame * np.asarray(gain, float)), 0, 255).astype(np.uint8)
+    return np.where(frame == 255, frame, scaled)

@@ -63,7 +63,9 @@ def test_colour_signal_and_laser_plane_are_the_plain_differences(dtype, with_dar
 def test_dark_frame_is_subtracted_and_roi_offsets_reported():
     rng = np.random.default_rng(103)
     img = rng.integers(20, 200, (60, 80)).astype(np.uint8)
-    dark = (img // 2).astype(np.uint8)
+    # a dark level of its own (a scaled copy of the frame would be the frame at another exposure,
+    # test_exposure.py)
+    dark = rng.integers(0, 20, img.shape).astype(np.uint8)
     li = prepare_image(img, dark=dark, roi=(10, 5, 70, 50), noise_sigma=1.0)
     assert li.origin == (10, 5)
     np.testing.assert_array_equal(li.signal, img[5:50, 10:70].astype(np.float32) - dark[5:50, 10:70])

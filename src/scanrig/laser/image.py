@@ -50,6 +50,7 @@ from scanrig.laser.channels import CHANNEL, CLIP_MARGIN, LASER_COLORS
 from scanrig.laser.clip_level import channel_clip_levels
 from scanrig.laser.colour_check import grey_frames
 from scanrig.laser.colour_frames import ColourFrames
+from scanrig.laser.exposure import exposure_matched
 from scanrig.laser.luma import LumaDifference, luma_difference
 from scanrig.laser.noise import (
     CORRELATED_NOISE_MIN,
@@ -216,7 +217,7 @@ def prepare_image(
     image, dark = grey_frames(image, dark)
     u0, v0, u1, v1 = _check_roi(roi, image.shape)
     image = image[v0:v1, u0:u1]
-    dark = None if dark is None else dark[v0:v1, u0:u1]
+    dark = None if dark is None else exposure_matched(image, dark[v0:v1, u0:u1])
     full_scale = float(np.iinfo(image.dtype).max)
     if isinstance(saturation_level, str):
         if saturation_level != "auto":
