@@ -330,6 +330,24 @@ def test_an_over_exposed_red_stripe_on_print_is_told_from_the_texture(tmp_path, 
                                                "session.toml)"])
 
 
+def test_a_red_stripe_detected_as_grey_is_named_by_the_colours_among_themselves(tmp_path):
+    """The rendered red stripe at half full scale on printed paper, with its laser-off frame, in a
+    session without a laser colour: grey (the frames' luma) finds less than three times less light
+    than red, so the line comes from the colours among themselves, red far above green and blue."""
+    from .colour_synth import stripe_frames
+
+    on, off, _ = stripe_frames(np.random.default_rng(0), overexposure=0.5)
+    folder = tmp_path / "scan" / "cam0"
+    folder.mkdir(parents=True)
+    write_image(folder / "f0.png", on)
+    write_image(folder / "dark.png", off)
+    options = DetectOptions("stripe", "grey")
+    [line] = colour_mismatches(tmp_path, options, detect_session(tmp_path, options))
+    assert re.fullmatch(rf"cam0: the laser in {re.escape(str(folder / 'f0.png'))} is red \(\d+ times the light of the "
+                        r"other colours\), detected as grey on the frames' luma: use --color red \(or laser_color = "
+                        r"'red' in session.toml\)", line), line
+
+
 @pytest.mark.parametrize("frames, laser", [(lambda f: f, "red"), (lambda f: np.ascontiguousarray(f[:, :, ::-1]), "blue")],
                          ids=["RGB", "BGR"])
 def test_spots_of_another_colour_are_named(tmp_path, frames, laser):

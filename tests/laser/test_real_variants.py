@@ -501,13 +501,13 @@ def test_detect_verb_on_swapped_channels_without_the_laser_off_frame(tmp_path, f
 
 def test_detect_verb_without_a_laser_colour_names_the_lasers(tmp_path, frames, reference, capsys):
     """The real frames with no ``laser_color`` (grey, the frames' luma): with the laser-off frame
-    grey finds about as much light as red, but red finds it where green and blue find none, so the
-    line says so (rank 0 on the stripe on 0.897 of rows as grey, 0.994 as red)."""
+    grey's rank-0 peaks sum to a quarter of red's, so the line names red (rank 0 on the stripe on
+    0.904 of rows as grey, 0.994 as red)."""
     capsys.readouterr()
     assert detect_cli(tmp_path, *frames, ".png", color=None) == 0
     assert capsys.readouterr().err.splitlines() == [
-        f"warning: cam0: the laser in {tmp_path / 'scan' / 'cam0' / '00000.png'} is red (the other colours find "
-        "none), detected as grey on the frames' luma: use --color red (or laser_color = 'red' in session.toml)"]
+        f"warning: cam0: grey finds 4 times less laser light than red in {tmp_path / 'scan' / 'cam0' / '00000.png'}; "
+        "the frames show a red one: use --color red (or laser_color = 'red' in session.toml)"]
     assert stripe_share(pq.read_table(tmp_path / "traces.parquet"), *reference) < 0.95
 
 

@@ -153,8 +153,10 @@ def one_colour(image: np.ndarray, found_with: Callable[[str], float]) -> str | N
     A laser asked for as grey is detected on the frame's luma, which holds every channel: a red
     laser's stripe shows there too, but with the scene's texture at full weight and the colour
     channels' crosstalk unused (the Ciclop bust with its laser-off frame: rank 0 on the stripe on
-    90 % of rows as grey, 99 % as red). :func:`colour_shown` cannot tell, as grey finds about as
-    much light as the laser's own colour; the colours among themselves can.
+    90 % of rows as grey, 99 % as red). :func:`colour_shown` cannot tell where grey finds more
+    than a third of the laser colour's light (the rendered red stripe at half full scale on
+    printed paper, with its laser-off frame: 0.39 of it); the colours among themselves can (there
+    red finds 115 times green's and blue's).
 
     Parameters
     ----------

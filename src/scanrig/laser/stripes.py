@@ -390,6 +390,8 @@ def _nearest_on_line(line, pos, maxima, offs) -> np.ndarray:
 
 #: Widths tried for the start of a fit whose core is clipped, pixels.
 _CLIPPED_START_WIDTHS = np.array([0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0])
+#: A trial width is used where its profile reaches about this share of its peak on the unclipped pixels.
+_MIN_FLANK_SHARE = 0.1
 
 
 def _start(y, background, half, max_width_px, saturated) -> np.ndarray:
@@ -461,8 +463,13 @@ def _clipped_start(y, saturated, half, max_width_px) -> np.ndarray:
         amp = (s_w * s_gy - s_g * s_y) / det
         bg = (s_y - amp * s_g) / s_w
         resid = (w * (y[:, None, :] - amp[..., None] * g - bg[..., None]) ** 2).sum(-1)
-    resid = np.where(np.isfinite(resid) & (amp > 0), resid, np.inf)
+    # a trial width whose profile hardly reaches the unclipped pixels (its squares there summing to
+    # less than those of one pixel at a tenth of its peak) leaves its amplitude free: it fitted a
+    # wide clipped run's flat flanks exactly at 1e26 DN, a start the fit then overflowed from
+    usable = np.isfinite(resid) & (amp > 0) & (s_gg >= _MIN_FLANK_SHARE**2)
+    resid = np.where(usable, resid, np.inf)
     best = np.argmin(resid, axis=1)
     pick = np.arange(y.shape[0])
-    return np.stack([np.nan_to_num(amp[pick, best], nan=1.0), x0, widths[best],
-                     np.nan_to_num(bg[pick, best])], axis=1)
+    found = usable[pick, best]
+    return np.stack([np.where(found, amp[pick, best], 1.0), x0, widths[best],
+                     np.where(found, bg[pick, best], 0.0)], axis=1)
