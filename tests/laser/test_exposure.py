@@ -7,7 +7,10 @@ import warnings
 import numpy as np
 import pytest
 
+from scanrig.cli.main import main
+from scanrig.io.session import write_image
 from scanrig.laser.exposure import GAIN_TOLERANCE, exposure_gains, exposure_matched
+from scanrig.laser.session_detect import exposure_mismatches
 from scanrig.laser.stripes import detect_stripe
 from tests.laser.colour_synth import exposed, stripe_frames
 
@@ -79,3 +82,29 @@ def test_a_laser_off_frame_at_another_exposure_finds_the_stripe(rendered, gain):
         return np.mean(np.concatenate(within))
 
     assert share(gain) >= share(1.0) - SHARE_MARGIN
+
+
+def _session(root, on, dark):
+    """A one-camera session: ``scan/cam0/f0.png`` and its laser-off frame ``scan/cam0/dark.png``."""
+    folder = root / "scan" / "cam0"
+    folder.mkdir(parents=True)
+    write_image(folder / "f0.png", on)
+    write_image(folder / "dark.png", dark)
+    return folder
+
+
+def test_detect_names_a_camera_whose_laser_off_frame_is_at_another_exposure(tmp_path, rendered, capsys):
+    on, off, _ = rendered[0]
+    folder = _session(tmp_path, on, exposed(off, (0.8, 0.8, 1.0)))
+    assert main(["detect", str(tmp_path), "--mode", "stripe", "--color", "red"]) == 0
+    warnings_shown = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings_shown == [
+        f"warning: cam0: the laser-off frame {folder / 'dark.png'} is 0.80 times as bright as {folder / 'f0.png'} "
+        "(red 0.80, green 0.80, blue 1.00): scaled to the frame's before it is subtracted; automatic exposure or "
+        "white balance is on, set both by hand to take the two frames alike"]
+
+
+def test_a_laser_off_frame_at_the_frames_exposure_is_not_named(tmp_path, rendered):
+    on, off, _ = rendered[0]
+    _session(tmp_path, on, off)
+    assert exposure_mismatches(tmp_path) == []

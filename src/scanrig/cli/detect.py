@@ -40,7 +40,8 @@ def command(
 
     Writes SESSION/traces.parquet (one row per candidate, every candidate, ranked) atomically and
     every 30 s while running; with --resume an interrupted run continues where it stopped. A camera
-    whose frames show a laser of another colour, and a frame whose scene itself reaches the clip
+    whose frames show a laser of another colour or whose laser-off frames were taken at another
+    exposure (they are scaled to the frames'), and a frame whose scene itself reaches the clip
     level, are named in one warning line each; no candidate in any frame is an error (exit 2) and
     writes nothing.
 
@@ -50,7 +51,8 @@ def command(
     from scanrig.errors import InputError
     from scanrig.io.session import Session
     from scanrig.laser.overlay import write_overlays
-    from scanrig.laser.session_detect import colour_mismatches, detect_session, options_from_session
+    from scanrig.laser.session_detect import (colour_mismatches, detect_session, exposure_mismatches,
+                                              options_from_session)
 
     roi_box = None
     if roi is not None:
@@ -68,7 +70,7 @@ def command(
         table = detect_session(sess.root, options, workers=workers, resume=resume,
                                progress=lambda done, total: progress(stage, done, total))
     n_frames = sum(len(sess.image_paths("scan", cam)) for cam in sess.camera_names("scan"))
-    for line in colour_mismatches(sess.root, options, table):
+    for line in colour_mismatches(sess.root, options, table) + exposure_mismatches(sess.root):
         typer.echo(f"warning: {line}", err=True)
     if not len(table):
         raise InputError(f"{sess.root / 'scan'}: no {options.color} laser {options.mode} in any of {n_frames} "

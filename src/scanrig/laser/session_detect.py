@@ -35,7 +35,9 @@ from scanrig.io.object_poses import object_poses_path
 from scanrig.io.session import Session, describe_image, natural_key, read_image
 from scanrig.laser.bright_scene import BrightSceneWarning
 from scanrig.laser.channels import LASER_COLORS
-from scanrig.laser.colour_check import CHANNEL_COLOURS, LaserColourError, colour_advice, colour_shown, one_colour
+from scanrig.laser.colour_check import (CHANNEL_COLOURS, LaserColourError, colour_advice, colour_shown, grey_frames,
+                                        one_colour)
+from scanrig.laser.exposure import GAIN_TOLERANCE, exposure_gains
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
@@ -420,6 +422,50 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
         line = _colour_line(camera, paths[stem], read_image(paths[stem]),
                             None if dark_path is None else read_image(dark_path), options)
         lines += [line] if line else []
+    return lines
+
+
+def exposure_mismatches(root: str | Path) -> list[str]:
+    """One line per camera whose laser-off frame was taken at another exposure than its frames.
+
+    Each camera's first scan frame with a laser-off file (its own, else the camera's) is compared
+    with that file (:func:`~scanrig.laser.exposure.exposure_gains`). Where a channel's gain departs
+    from 1 by more than :data:`~scanrig.laser.exposure.GAIN_TOLERANCE`, the detection scaled the
+    laser-off frames to their frames' exposure (:func:`~scanrig.laser.exposure.exposure_matched`);
+    the line says so, and that the camera's automatic exposure or white balance is on. Frames of
+    another size than their laser-off file are left to the detection's own error.
+
+    Parameters
+    ----------
+    root : path
+        Session folder.
+
+    Returns
+    -------
+    list of str
+        ``"cam0: the laser-off frame <path> is 1.25 times as bright as <frame path> (red 1.25, green
+        1.24, blue 1.25): scaled to the frame's before it is subtracted; ..."``.
+    """
+    session = Session(root)
+    lines = []
+    for camera in session.camera_names("scan"):
+        paths, own = session.image_paths("scan", camera), session.frame_dark_paths(camera)
+        stem = next((stem for stem in paths if stem in own), next(iter(paths), None))
+        dark_path = own.get(stem, session.dark_path(camera))
+        if stem is None or dark_path is None:
+            continue
+        image, dark = grey_frames(read_image(paths[stem]), read_image(dark_path))
+        if image.shape != dark.shape or image.dtype != dark.dtype:
+            continue
+        gains = exposure_gains(image, dark)
+        if np.all(np.abs(gains - 1.0) <= GAIN_TOLERANCE):
+            continue
+        brightness = 1.0 / gains
+        names = CHANNEL_COLOURS if brightness.size == 3 else ("grey",)
+        lines.append(f"{camera}: the laser-off frame {dark_path} is {np.median(brightness):.2f} times as bright as "
+                     f"{paths[stem]} ({', '.join(f'{n} {b:.2f}' for n, b in zip(names, brightness))}): scaled to "
+                     "the frame's before it is subtracted; automatic exposure or white balance is on, set both by "
+                     "hand to take the two frames alike")
     return lines
 
 
