@@ -66,18 +66,24 @@ def exposure_gains(image: np.ndarray, dark: np.ndarray) -> np.ndarray:
     return gains
 
 
+def mismatched(gains: np.ndarray) -> np.ndarray:
+    """Channels ``(C,)`` bool whose gains ``(C,)`` (:func:`exposure_gains`) depart from 1 by more
+    than ``GAIN_TOLERANCE``."""
+    return np.abs(gains - 1.0) > GAIN_TOLERANCE
+
+
 def exposure_matched(image: np.ndarray, dark: np.ndarray) -> np.ndarray:
     """The laser-off frame ``dark`` at the exposure of ``image`` (arrays as for :func:`exposure_gains`).
 
     Returns
     -------
     array like ``dark``
-        ``dark`` itself where every channel's gain (:func:`exposure_gains`) is within
-        ``GAIN_TOLERANCE`` of 1; else a new array, each such channel times its gain, rounded and
-        held within the dtype's range, its pixels at the dtype's maximum kept there.
+        ``dark`` itself where no channel is :func:`mismatched`; else a new array, each such
+        channel times its gain (:func:`exposure_gains`), rounded and held within the dtype's
+        range, its pixels at the dtype's maximum kept there.
     """
     gains = exposure_gains(image, dark)
-    off = np.abs(gains - 1.0) > GAIN_TOLERANCE
+    off = mismatched(gains)
     if not off.any():
         return dark
     scale = np.where(off, gains, 1.0)

@@ -37,7 +37,7 @@ from scanrig.laser.bright_scene import BrightSceneWarning
 from scanrig.laser.channels import LASER_COLORS
 from scanrig.laser.colour_check import (CHANNEL_COLOURS, LaserColourError, colour_advice, colour_shown, grey_frames,
                                         one_colour)
-from scanrig.laser.exposure import GAIN_TOLERANCE, exposure_gains
+from scanrig.laser.exposure import exposure_gains, mismatched
 from scanrig.laser.median_dark import median_dark
 from scanrig.laser.stripes import DIRECTIONS
 from scanrig.laser.traces import empty_table, read_traces, write_traces
@@ -430,7 +430,7 @@ def exposure_mismatches(root: str | Path) -> list[str]:
 
     Each camera's first scan frame with a laser-off file (its own, else the camera's) is compared
     with that file (:func:`~scanrig.laser.exposure.exposure_gains`). Where a channel's gain departs
-    from 1 by more than :data:`~scanrig.laser.exposure.GAIN_TOLERANCE`, the detection scaled the
+    from 1 (:func:`~scanrig.laser.exposure.mismatched`), the detection scaled the
     laser-off frames to their frames' exposure (:func:`~scanrig.laser.exposure.exposure_matched`);
     the line says so, and that the camera's automatic exposure or white balance is on. Frames of
     another size than their laser-off file are left to the detection's own error.
@@ -458,7 +458,7 @@ def exposure_mismatches(root: str | Path) -> list[str]:
         if image.shape != dark.shape or image.dtype != dark.dtype:
             continue
         gains = exposure_gains(image, dark)
-        if np.all(np.abs(gains - 1.0) <= GAIN_TOLERANCE):
+        if not mismatched(gains).any():
             continue
         brightness = 1.0 / gains
         names = CHANNEL_COLOURS if brightness.size == 3 else ("grey",)
