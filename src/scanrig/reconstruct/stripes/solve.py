@@ -70,7 +70,7 @@ def solve(cams, obs: Observations, plane=None, start=None):
     H = obs.q.shape[1]
     p = _linear_start(cams, obs) if start is None else start.copy()
     if plane is not None:
-        w_plane = 1.0 / np.maximum(plane.offset_sigma(np.nan_to_num(p)), 1e-9) ** 2
+        w_plane = 1.0 / np.maximum(plane.offset_sigma(_finite(p)), 1e-9) ** 2
     with np.errstate(invalid="ignore", over="ignore"):  # diverged hypotheses end as not ok
         for it in range(GN_STEPS + 1):
             A = np.zeros((H, 3, 3))
@@ -79,23 +79,24 @@ def solve(cams, obs: Observations, plane=None, start=None):
             rsum = np.zeros(H)
             along = np.zeros(H)
             front = np.ones(H, bool)
+            p_finite = _finite(p)
             for c, cam in enumerate(cams):
                 use = obs.used[c]
                 if not use.any():
                     continue
-                q_hat, J = cam.project_with_point_jacobian(np.nan_to_num(p))
+                q_hat, J = cam.project_with_point_jacobian(p_finite)
                 front &= ~use | np.all(np.isfinite(q_hat), axis=1)
-                r = np.where(use[:, None], obs.q[c] - np.nan_to_num(q_hat), 0.0)
-                J = np.where(use[:, None, None], np.nan_to_num(J), 0.0)
+                r = np.where(use[:, None], obs.q[c] - _finite(q_hat), 0.0)
+                J = np.where(use[:, None, None], _finite(J), 0.0)
                 Wr = np.einsum("nij,nj->ni", obs.W[c], r)
-                A += np.einsum("nki,nkl,nlj->nij", J, obs.W[c], J)
+                A += J.transpose(0, 2, 1) @ (obs.W[c] @ J)  # JᵀWJ: matmul, a quarter of einsum's time
                 g += np.einsum("nki,nk->ni", J, Wr)
                 chi2 += np.einsum("ni,ni->n", r, Wr)
                 # residual as a distance: full for the reference, across the stripe for the others
                 rsum += np.einsum("ni,nij,nj->n", r, obs.D[c], r)
                 along = np.fmax(along, np.abs(np.einsum("ni,ni->n", obs.T[c], r)))
             if plane is not None:
-                rp = plane.offset - np.nan_to_num(p) @ plane.normal
+                rp = plane.offset - p_finite @ plane.normal
                 A += w_plane[:, None, None] * plane.normal[None, :, None] * plane.normal[None, None, :]
                 g += (w_plane * rp)[:, None] * plane.normal
                 chi2 += w_plane * rp**2
@@ -111,6 +112,12 @@ def solve(cams, obs: Observations, plane=None, start=None):
     # local: far along the stripe from the matched detection it says nothing)
     ok &= along <= MERGE_PX
     return p, cov, chi2, residual_px, ok
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(x)`` (NaN to 0, ±inf to the largest floats), or ``x`` itself where all of it is
+    finite: one pass instead of nan_to_num's four on the usual all-finite arrays."""
+    return x if np.isfinite(x).all() else np.nan_to_num(x)
 
 
 def _linear_start(cams, obs: Observations):
