@@ -13,6 +13,7 @@ from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.pipeline import reconstruct_session
 from scanrig.reconstruct.points import read_points
 from scanrig.reconstruct.stripes import reconstruct_stripes
+from scanrig.reconstruct.stripes.epipolar import crossing
 from scanrig.reconstruct.stripes.precision import sigma_across_stripe
 from tests.reconstruct.synth import height_field, ring_rig, stripe_traces
 
@@ -132,3 +133,16 @@ def test_sigma_across_stripe_bounds_the_error_off_the_tangent():
     assert np.all(bound <= sigma_from_covariance(cov))
     # too few neighbours for a tangent: the largest axis
     assert sigma_across_stripe(p[:3], cov[:3], p[:3]) == pytest.approx(sigma_from_covariance(cov[:3]))
+
+
+def test_a_segment_crosses_a_line_where_its_ends_lie_on_both_sides_or_one_on_it():
+    """The epipolar crossing test on signs agrees with ``s1 · s2 <= 0, s1 != s2`` on distances
+    that are positive, negative, zero or NaN (a segment with a NaN end never crosses)."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        distances = rng.choice([-2.0, -1.0, 0.0, 0.5, 1.0, np.nan], size=(rng.integers(2, 12), rng.integers(1, 6)))
+        b1, b2 = rng.integers(0, len(distances), size=(2, rng.integers(1, 10)))
+        s1, s2 = distances[b1], distances[b2]
+        with np.errstate(invalid="ignore"):
+            expected = (s1 * s2 <= 0.0) & (s1 != s2)
+        np.testing.assert_array_equal(crossing(distances, b1, b2), expected)

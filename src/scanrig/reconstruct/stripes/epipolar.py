@@ -37,18 +37,32 @@ def _crossings(cam_i, view_i: StripeView, cam_j, view_j: StripeView):
     lines = view_i.xh @ _essential(cam_i, cam_j).T  # (n_i, 3): line in j's normalised plane
     S = view_j.xh @ lines.T  # (n_j, n_i) signed (unnormalised) distances
     b1, b2 = view_j.segments[:, 0], view_j.segments[:, 1]
-    s1, s2 = S[b1], S[b2]
-    seg, a = np.nonzero((s1 * s2 <= 0.0) & (s1 != s2))
+    seg, a = np.nonzero(crossing(S, b1, b2))
     if a.size == 0:
         return empty, empty
-    t = s1[seg, a] / (s1[seg, a] - s2[seg, a])
     i1, i2 = b1[seg], b2[seg]
+    s1, s2 = S[i1, a], S[i2, a]
+    t = s1 / (s1 - s2)
     qc = view_j.q[i1] + t[:, None] * (view_j.q[i2] - view_j.q[i1])
     b = np.where(t <= 0.5, i1, i2)
     offset = np.linalg.norm(qc - view_j.q[b], axis=1)
     keep = view_j.has_tangent[b]
     a, b, qc, offset = a[keep], b[keep], qc[keep], offset[keep]
     return _branches(a, b, qc, offset)
+
+
+def crossing(S: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np.ndarray:
+    """Whether the segments ``b1[k] → b2[k]`` cross each line, from the signed distances ``S (n_j, n_i)``
+    of the points to the lines: ``S[b1] · S[b2] <= 0`` and not both zero (no NaN end), ``(K, n_i)``.
+
+    The test runs on the signs, gathered per segment as booleans (an eighth of the float rows'
+    bytes). A NaN distance counts as above, below and on the line at once, so that a segment with
+    a NaN end never crosses.
+    """
+    above, below = ~(S <= 0.0), ~(S >= 0.0)
+    on_line = above == below
+    same_side = (above[b1] & above[b2]) | (below[b1] & below[b2])
+    return ~same_side & ~(on_line[b1] & on_line[b2])
 
 
 def _branches(a, b, qc, offset):
