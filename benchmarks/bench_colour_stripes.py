@@ -9,8 +9,9 @@ laser 8 × past full scale on paper, crosstalk 7 % / 5 % into green / blue, a su
 row, the 7-pixel centre of gravity of ``red − (green + blue) / 2`` (laser-off frame subtracted
 where there is one) around the row's maximum. Then the same set with one frame of the pair at
 another exposure (automatic exposure or white balance), next to the laser-off frame subtracted as
-it is. The speed section also times the candidate search alone (``max_per_line=0``: nothing is
-fitted).
+it is, and with flicker bands (a rolling shutter under a flickering lamp) on one frame of the pair,
+matched row by row, as a whole, or subtracted as it is. The speed section also times the candidate
+search alone (``max_per_line=0``: nothing is fitted).
 
 Real frames (``tests/data/ciclop-laser-stripes``, CC BY-SA 4.0): a Ciclop scanner's webcam, a red
 line laser on a white bust; rank 0 is counted on the stripe when within 6 px of the row's
@@ -31,6 +32,7 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
+from contextlib import nullcontext  # noqa: E402
 from pathlib import Path  # noqa: E402
 from unittest import mock  # noqa: E402
 
@@ -43,6 +45,7 @@ from tests.laser import ciclop_board as board  # noqa: E402
 from tests.laser.colour_synth import exposed, stripe_frames  # noqa: E402
 
 from scanrig.io.session import read_image  # noqa: E402
+from scanrig.laser import exposure as frame_exposure  # noqa: E402
 from scanrig.laser import image  # noqa: E402
 from scanrig.laser.bright_scene import BrightSceneWarning  # noqa: E402
 from scanrig.laser.stripes import detect_stripe  # noqa: E402
@@ -149,6 +152,41 @@ def exposure(seeds) -> None:
                 print(f"  {which + ', ' + label:34}" + "".join(f"{x:8.3f}" for x in shares))
 
 
+#: Amplitudes of the flicker bands (each row's gain 1 + a sin(2π row / FLICKER_PERIOD_ROWS + 0.7)).
+FLICKER_AMPLITUDES = (0.05, 0.1, 0.2, 0.3)
+FLICKER_PERIOD_ROWS = 300.0
+
+
+def flicker(seeds) -> None:
+    """Rank 0 within 0.5 px with flicker bands on one frame of the rendered pair: the laser-off frame
+    matched row by row (scanrig), matched as a whole (row gains switched off) and subtracted as it is."""
+    frames = [stripe_frames(np.random.default_rng(seed)) for seed in seeds]
+
+    def share(which, amplitude):
+        rows = slice(EDGE_ROWS, -EDGE_ROWS)
+        within = []
+        for on, off, truth in frames:
+            bands = (1.0 + amplitude * np.sin(2.0 * np.pi * np.arange(on.shape[0]) / FLICKER_PERIOD_ROWS + 0.7))
+            bands = bands[:, None, None]
+            on, off = (on, exposed(off, bands)) if which == "laser-off frame" else (exposed(on, bands), off)
+            within.append(np.abs(rank0_by_row(detect_stripe(on, color="red", dark=off), on.shape[0])[0] - truth)[rows]
+                          < 0.5)
+        return np.mean(np.concatenate(within))
+
+    print(f"\nFlicker bands on one frame of the rendered pair (640x480, seeds {seeds.start}-{seeds.stop - 1}, "
+          f"period {FLICKER_PERIOD_ROWS:g} rows): rank 0 within 0.5 px")
+    print(f"  {'bands on, laser-off frame':44}" + "".join(f"{'+-' + format(a, 'g'):>8}" for a in FLICKER_AMPLITUDES))
+    variants = {"matched row by row": {},
+                "matched as a whole": {"row_gains": lambda frame, dark: None},
+                "subtracted as it is": {"exposure_matched": lambda frame, dark: dark}}
+    for which in ("laser-off frame", "laser-on frame"):
+        for label, patches in variants.items():
+            module = image if "exposure_matched" in patches else frame_exposure
+            with mock.patch.multiple(module, **patches) if patches else nullcontext():
+                shares = [share(which, a) for a in FLICKER_AMPLITUDES]
+            print(f"  {which + ', ' + label:44}" + "".join(f"{x:8.3f}" for x in shares))
+
+
 def speed(reps: int) -> None:
     cv2.setNumThreads(1)
     on, off, _ = stripe_frames(np.random.default_rng(0), shape=(1080, 1920))
@@ -245,6 +283,7 @@ def main() -> None:
     args = parser.parse_args()
     accuracy(range(args.seeds))
     exposure(range(args.seeds))
+    flicker(range(args.seeds))
     speed(args.reps)
     ciclop()
 
