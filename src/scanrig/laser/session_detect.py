@@ -426,16 +426,17 @@ def colour_mismatches(root: str | Path, options: DetectOptions, table: pa.Table)
 
 
 def exposure_mismatches(root: str | Path) -> list[str]:
-    """Lines on cameras whose laser-off frame was taken at another exposure than its frames.
+    """One line per camera whose laser-off frame was taken at another exposure than its frames.
 
     Each camera's first scan frame with a laser-off file (its own, else the camera's) is compared
     with that file (:func:`~scanrig.laser.exposure.exposure_gains`). Where a channel's gain departs
     from 1 (:func:`~scanrig.laser.exposure.mismatched`), the detection scaled the
     laser-off frames to their frames' exposure (:func:`~scanrig.laser.exposure.exposure_matched`);
     a line says so, and that the camera's automatic exposure or white balance is on. Where the
-    gain varies from row to row (flicker bands, :func:`~scanrig.laser.exposure.row_gains`), a line
-    says that it was matched row by row and how to take frames without the bands. Frames of
-    another size than their laser-off file are left to the detection's own error.
+    gain varies from row to row (flicker bands, :func:`~scanrig.laser.exposure.row_gains`), the
+    line says instead that it was matched row by row, over which range of brightness, and how to
+    take frames without the bands. Frames of another size than their laser-off file are left to
+    the detection's own error.
 
     Parameters
     ----------
@@ -446,8 +447,8 @@ def exposure_mismatches(root: str | Path) -> list[str]:
     -------
     list of str
         ``"cam0: the laser-off frame <path> is 1.25 times as bright as <frame path> (red 1.25, green
-        1.24, blue 1.25): scaled to the frame's before it is subtracted; ..."``, ``"cam0: the laser-off frame
-        <path> is 0.83 to 1.25 times as bright as <frame path> from row to row ..."``.
+        1.24, blue 1.25): scaled to the frame's before it is subtracted; ..."`` or ``"cam0: the
+        laser-off frame <path> is 0.83 to 1.25 times as bright as <frame path> from row to row ..."``.
     """
     session = Session(root)
     lines = []
@@ -460,6 +461,15 @@ def exposure_mismatches(root: str | Path) -> list[str]:
         image, dark = grey_frames(read_image(paths[stem]), read_image(dark_path))
         if image.shape != dark.shape or image.dtype != dark.dtype:
             continue
+        by_row = row_gains(image, dark)
+        if by_row is not None:  # flicker bands: the line gives their range of brightness
+            brightness = 1.0 / np.median(by_row, axis=1)
+            lines.append(f"{camera}: the laser-off frame {dark_path} is {brightness.min():.2f} to "
+                         f"{brightness.max():.2f} times as bright as {paths[stem]} from row to row (flicker bands "
+                         "of a rolling shutter under mains-powered light): scaled row by row before it is "
+                         "subtracted; light the scene with a steady lamp, or set the exposure time to whole "
+                         "periods of the flicker (10 ms under 50 Hz mains, 8.3 ms under 60 Hz)")
+            continue
         gains = exposure_gains(image, dark)
         if mismatched(gains).any():
             brightness = 1.0 / gains
@@ -468,14 +478,6 @@ def exposure_mismatches(root: str | Path) -> list[str]:
                          f"as {paths[stem]} ({', '.join(f'{n} {b:.2f}' for n, b in zip(names, brightness))}): "
                          "scaled to the frame's before it is subtracted; automatic exposure or white balance is on, "
                          "set both by hand to take the two frames alike")
-        by_row = row_gains(image, dark)
-        if by_row is not None:
-            brightness = 1.0 / np.median(by_row, axis=1)
-            lines.append(f"{camera}: the laser-off frame {dark_path} is {brightness.min():.2f} to "
-                         f"{brightness.max():.2f} times as bright as {paths[stem]} from row to row (flicker bands "
-                         "of a rolling shutter under mains-powered light): scaled row by row before it is "
-                         "subtracted; light the scene with a steady lamp, or set the exposure time to whole "
-                         "periods of the flicker (10 ms under 50 Hz mains, 8.3 ms under 60 Hz)")
     return lines
 
 
