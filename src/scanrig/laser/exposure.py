@@ -219,21 +219,22 @@ def exposure_matched(image: np.ndarray, dark: np.ndarray) -> np.ndarray:
         own where it varies), rounded and held within the dtype's range, its pixels at the dtype's
         maximum kept there.
     """
-    gains = exposure_gains(image, dark)
-    by_row = row_gains(image, dark)
-    off = mismatched(gains)
-    if by_row is None and not off.any():
-        return dark
     full_scale = np.iinfo(dark.dtype).max
+    by_row = row_gains(image, dark)
     if by_row is not None:  # each row times its gains: OpenCV's saturating, rounding product
         per_row = by_row.astype(np.float32)[:, None, :] if dark.ndim == 3 else by_row.astype(np.float32)
         scale = cv2.repeat(per_row, 1, dark.shape[1])  # (H, W[, C])
         matched = cv2.multiply(dark, scale, dtype=cv2.CV_8U if dark.dtype == np.uint8 else cv2.CV_16U)
-    elif dark.dtype == np.uint8:  # a lookup table per channel, one pass over the frame in OpenCV
-        table = np.minimum(np.rint(np.arange(256.0)[:, None] * np.where(off, gains, 1.0)), 255).astype(np.uint8)
-        table[255] = 255
-        return cv2.LUT(dark, table.reshape(256, 1, -1) if dark.ndim == 3 else table[:, 0])
     else:
-        matched = np.minimum(np.rint(dark * np.where(off, gains, 1.0).astype(np.float32)), full_scale).astype(dark.dtype)
+        gains = exposure_gains(image, dark)
+        off = mismatched(gains)
+        if not off.any():
+            return dark
+        gains = np.where(off, gains, 1.0)
+        if dark.dtype == np.uint8:  # a lookup table per channel, one pass over the frame in OpenCV
+            table = np.minimum(np.rint(np.arange(256.0)[:, None] * gains), 255).astype(np.uint8)  # (256, C)
+            table[255] = 255
+            return cv2.LUT(dark, table.reshape(256, 1, -1) if dark.ndim == 3 else table[:, 0])
+        matched = np.minimum(np.rint(dark * gains.astype(np.float32)), full_scale).astype(dark.dtype)
     np.copyto(matched, dark, where=dark == full_scale)
     return matched
