@@ -27,11 +27,11 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from scanrig.errors import InputError
 from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD, TriangulationInfo, triangulate
 from scanrig.reconstruct.candidates import Candidates
+from scanrig.reconstruct.chi2_gate import chi2_quantile
 from scanrig.reconstruct.flags import Flag
 
 #: Pixel noise added in quadrature to every detection's covariance before gating and in the
@@ -145,7 +145,7 @@ def match_spots(
     choice = hyp[hi]  # (M, n_cams)
     p, info = _triangulate_choices(rig, cand.q, cov, dirs, fi, choice, refine=False, min_angle_rad=min_angle_rad)
     dof = 2 * info.n_views.astype(np.int64) - 3
-    gate = chi2_dist.ppf(gate_probability, np.maximum(dof, 1))
+    gate = chi2_quantile(gate_probability, np.maximum(dof, 1))
     consistent = info.ok & (info.chi2 <= gate)
 
     fc, hc, pc, cov_c = fi[consistent], choice[consistent], p[consistent], info.cov[consistent]
@@ -168,7 +168,7 @@ def match_spots(
     with np.errstate(invalid="ignore"):
         d2 = np.einsum("ni,ni->n", delta, np.linalg.solve(S, delta[..., None])[..., 0])
     disjoint = ~np.any((hc >= 0) & (hc == hc[w]), axis=1)
-    rival = ((nv == nv[w]) | disjoint) & (d2 > chi2_dist.ppf(gate_probability, 3))
+    rival = ((nv == nv[w]) | disjoint) & (d2 > chi2_quantile(gate_probability, 3))
     ambiguous_frames = np.unique(fc[rival])
 
     status = np.full(n_frames, FrameStatus.NO_AGREEMENT, np.uint8)

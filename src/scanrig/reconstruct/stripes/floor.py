@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
+from scanrig.reconstruct.chi2_gate import chi2_quantile
 from scanrig.reconstruct.correspondence import GATE_PROBABILITY
 from scanrig.reconstruct.stripes.epipolar import frame_branches, hypotheses
 from scanrig.reconstruct.stripes.solve import Observations, solve
@@ -116,7 +116,7 @@ def estimate_calibration_floor(samples, n_cams: int, gate_probability: float = G
     # A ring gets its own increment only where its samples are significantly worse than the noise
     # model (sign test: under it half the χ² are below their median); else it keeps the inner
     # ring's value, so a few unlucky samples cannot raise the floor.
-    above = chi2 > chi2_dist.ppf(0.5, dof)
+    above = chi2 > chi2_quantile(0.5, dof)
     live_ring = np.zeros((n_cams, n_bins), bool)
     for c in range(n_cams):
         seen = np.isfinite(radius[:, c])
@@ -128,7 +128,7 @@ def estimate_calibration_floor(samples, n_cams: int, gate_probability: float = G
     live = np.flatnonzero(A.any(axis=0) & live_ring.ravel())
     if live.size == 0:
         return edges, s2
-    gate = chi2_dist.ppf(gate_probability, dof)
+    gate = chi2_quantile(gate_probability, dof)
     keep = chi2 <= FLOOR_FIRST_GATE * gate
     for _ in range(FLOOR_ITERATIONS):
         if keep.sum() < FLOOR_MIN_SAMPLES:

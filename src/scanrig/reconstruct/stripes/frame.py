@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from scanrig.geometry.uncertainty import sigma_from_covariance
+from scanrig.reconstruct.chi2_gate import chi2_quantile
 from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.accept import contradicted, greedy_unique
@@ -80,7 +80,7 @@ def reconstruct_stripe_frame(rig, views, frame_index: int, rng, gate_probability
     # but not through it (a third view that sees the stripe far away may be occluded there)
     clash = np.zeros(len(choice), bool)
     two = np.flatnonzero(m == 1)
-    clash[two] = contradicted(cams, views, choice[two], p[two], cov[two], chi2_dist.ppf(gate_probability, 1))
+    clash[two] = contradicted(cams, views, choice[two], p[two], cov[two], chi2_quantile(gate_probability, 1))
     counts["off_plane_pairs"] += int(clash.sum())
     choice, p, cov, resid, m, ref = (x[~clash] for x in (choice, p, cov, resid, m, ref))
     sigma = sigma_from_covariance(cov) if len(cov) else np.zeros(0)

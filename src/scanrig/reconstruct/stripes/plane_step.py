@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from scanrig.geometry.uncertainty import sigma_from_covariance
+from scanrig.reconstruct.chi2_gate import chi2_quantile
 from scanrig.reconstruct.light_plane import MIN_PLANE_POINTS, fit_plane_robust, with_block_uncertainty
 from scanrig.reconstruct.stripes.solve import SolvedHypotheses, solve
 
@@ -22,7 +22,7 @@ def three_view_pass(h: SolvedHypotheses, gate_probability: float) -> np.ndarray:
     """``(H,)`` hypotheses with three or more views that pass their χ² gate (``m − 1`` dof)."""
     m = h.n_other
     dof = np.maximum(m - 1, 1)
-    return h.ok & (m >= 2) & (h.chi2 <= chi2_dist.ppf(gate_probability, dof))
+    return h.ok & (m >= 2) & (h.chi2 <= chi2_quantile(gate_probability, dof))
 
 
 def fit_frame_plane(hyps: list[SolvedHypotheses], multi: list[np.ndarray], rng):
@@ -74,7 +74,7 @@ def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_pr
     crossing = np.arcsin(np.clip(np.abs(h.obs.dirs[h.ref] @ plane.normal), 0.0, 1.0)) >= min_angle_rad
     p2, cov2, chi2_2, resid2, ok2 = solve(cams, h.obs, plane, start=h.p)
     with_plane = h.ok & ok2 & crossing
-    passed = with_plane & (chi2_2 <= chi2_dist.ppf(gate_probability, m))
+    passed = with_plane & (chi2_2 <= chi2_quantile(gate_probability, m))
     # a two-view point must be located by its own views, the plane only checking and
     # sharpening it: where the views leave it loose, the plane test cannot see errors
     # (a reflection's ray meets the plane somewhere) that the plane-made sigma would hide;

@@ -73,35 +73,43 @@ def solve(cams, obs: Observations, plane=None, start=None):
         w_plane = 1.0 / np.maximum(plane.offset_sigma(_finite(p)), 1e-9) ** 2
     with np.errstate(invalid="ignore", over="ignore"):  # diverged hypotheses end as not ok
         for it in range(GN_STEPS + 1):
+            # the steps need only the normal equations; the last pass, at the solution, gives the
+            # covariance, χ², the residuals and the checks
+            final = it == GN_STEPS
             A = np.zeros((H, 3, 3))
             g = np.zeros((H, 3))
-            chi2 = np.zeros(H)
-            rsum = np.zeros(H)
-            along = np.zeros(H)
-            front = np.ones(H, bool)
+            if final:
+                chi2 = np.zeros(H)
+                rsum = np.zeros(H)
+                along = np.zeros(H)
+                front = np.ones(H, bool)
             p_finite = _finite(p)
             for c, cam in enumerate(cams):
                 use = obs.used[c]
                 if not use.any():
                     continue
                 q_hat, J = cam.project_with_point_jacobian(p_finite)
-                front &= ~use | np.all(np.isfinite(q_hat), axis=1)
                 r = np.where(use[:, None], obs.q[c] - _finite(q_hat), 0.0)
                 J = np.where(use[:, None, None], _finite(J), 0.0)
                 Wr = np.einsum("nij,nj->ni", obs.W[c], r)
                 A += J.transpose(0, 2, 1) @ (obs.W[c] @ J)  # JᵀWJ: matmul, a quarter of einsum's time
-                g += np.einsum("nki,nk->ni", J, Wr)
-                chi2 += np.einsum("ni,ni->n", r, Wr)
-                # residual as a distance: full for the reference, across the stripe for the others
-                rsum += np.einsum("ni,nij,nj->n", r, obs.D[c], r)
-                along = np.fmax(along, np.abs(np.einsum("ni,ni->n", obs.T[c], r)))
+                if not final:
+                    g += np.einsum("nki,nk->ni", J, Wr)
+                else:
+                    front &= ~use | np.all(np.isfinite(q_hat), axis=1)
+                    chi2 += np.einsum("ni,ni->n", r, Wr)
+                    # residual as a distance: full for the reference, across the stripe for the others
+                    rsum += np.einsum("ni,nij,nj->n", r, obs.D[c], r)
+                    along = np.fmax(along, np.abs(np.einsum("ni,ni->n", obs.T[c], r)))
             if plane is not None:
                 rp = plane.offset - p_finite @ plane.normal
                 A += w_plane[:, None, None] * plane.normal[None, :, None] * plane.normal[None, None, :]
-                g += (w_plane * rp)[:, None] * plane.normal
-                chi2 += w_plane * rp**2
+                if not final:
+                    g += (w_plane * rp)[:, None] * plane.normal
+                else:
+                    chi2 += w_plane * rp**2
             cov, singular = inv_sym3(A)
-            if it == GN_STEPS:
+            if final:
                 break
             p = p + np.einsum("nij,nj->ni", cov, g)
         n_views = obs.used.sum(axis=0)
