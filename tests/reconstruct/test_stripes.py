@@ -1,5 +1,6 @@
 """Stripe mode: epipolar matching, light plane, single-view points, reflection rejection."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,7 +14,7 @@ from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.pipeline import reconstruct_session
 from scanrig.reconstruct.points import read_points
 from scanrig.reconstruct.stripes import reconstruct_stripes
-from scanrig.reconstruct.stripes.epipolar import crossing
+from scanrig.reconstruct.stripes.epipolar import crossing, near_crossings
 from scanrig.reconstruct.stripes.precision import sigma_across_stripe
 from tests.reconstruct.synth import height_field, ring_rig, stripe_traces
 
@@ -140,9 +141,50 @@ def test_a_segment_crosses_a_line_where_its_ends_lie_on_both_sides_or_one_on_it(
     that are positive, negative, zero or NaN (a segment with a NaN end never crosses)."""
     rng = np.random.default_rng(3)
     for _ in range(300):
-        distances = rng.choice([-2.0, -1.0, 0.0, 0.5, 1.0, np.nan], size=(rng.integers(2, 12), rng.integers(1, 6)))
-        b1, b2 = rng.integers(0, len(distances), size=(2, rng.integers(1, 10)))
-        s1, s2 = distances[b1], distances[b2]
+        s1, s2 = rng.choice([-2.0, -1.0, 0.0, 0.5, 1.0, np.nan], size=(2, rng.integers(1, 10), rng.integers(1, 6)))
         with np.errstate(invalid="ignore"):
             expected = (s1 * s2 <= 0.0) & (s1 != s2)
-        np.testing.assert_array_equal(crossing(distances, b1, b2), expected)
+        np.testing.assert_array_equal(crossing(s1, s2), expected)
+
+
+def _random_essential(rng):
+    """``E = [t]x R`` of a random relative pose (unit baseline)."""
+    R = cv2.Rodrigues(rng.normal(0.0, 0.6, 3))[0]
+    t = rng.normal(0.0, 1.0, 3)
+    t /= np.linalg.norm(t)
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    return tx @ R
+
+
+def test_the_pencil_of_epipolar_lines_finds_every_crossing_the_dense_test_finds():
+    """Candidates from the lines' angles about the epipole, then the sign test on them, give the
+    same (segment, line) pairs as the sign test on every pair: random relative poses (epipoles in
+    and out of the points' spread), stripes as chains of neighbouring points, points a hair from
+    the epipole in both cameras, a point on a line to rounding, and NaN points."""
+    rng = np.random.default_rng(11)
+    for trial in range(60):
+        E = _random_essential(rng)
+        n_i, n_j = rng.integers(5, 80, size=2)
+        xh_i = np.c_[rng.uniform(-0.6, 0.6, (n_i, 2)), np.ones(n_i)]
+        # a stripe: a random walk with steps of 1-30 % of the field
+        walk = np.cumsum(rng.normal(0.0, rng.uniform(0.01, 0.3), (n_j, 2)), axis=0) + rng.uniform(-0.5, 0.5, 2)
+        xh_j = np.c_[walk, np.ones(n_j)]
+        e_i, e_j = np.linalg.svd(E)[2][2], np.linalg.svd(E.T)[2][2]  # E e_i = 0, Eᵀ e_j = 0
+        at_epipoles = trial % 3 == 0 and abs(e_i[2]) > 1e-3 and abs(e_j[2]) > 1e-3
+        if at_epipoles:  # a hair from them, where angles are not known to the margin: paired with all
+            xh_i[0] = e_i / e_i[2] + np.r_[1e-9, -2e-9, 0.0]
+            xh_j[1] = e_j / e_j[2] + np.r_[3e-10, 1e-10, 0.0]
+        lines = xh_i @ E.T
+        if trial % 4 == 1:  # a point of j on a line, and NaN points in both cameras
+            xh_j[2, 0] = -(lines[0, 2] + lines[0, 1] * xh_j[2, 1]) / lines[0, 0]
+            xh_j[3] = np.nan
+            xh_i[4] = np.nan
+            lines = xh_i @ E.T
+        segments = np.r_[np.c_[np.arange(n_j - 1), np.arange(1, n_j)], rng.integers(0, n_j, (5, 2))]
+        S = xh_j @ lines.T
+        dense = np.argwhere(crossing(S[segments[:, 0]], S[segments[:, 1]]))
+        seg, line = near_crossings(E, xh_i, xh_j, segments)
+        kept = crossing(S[segments[seg, 0], line], S[segments[seg, 1], line])
+        np.testing.assert_array_equal(np.c_[seg[kept], line[kept]], dense)
+        if not at_epipoles:  # the candidates are the crossings, but for the margin's few
+            assert seg.size <= len(dense) + 3
