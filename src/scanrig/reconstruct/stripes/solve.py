@@ -25,6 +25,7 @@ class Observations:
     def __init__(self, views, ref: int, choice: np.ndarray):
         n_cams, H = len(views), len(choice)
         self.used = choice.T >= 0  # (n_cams, H)
+        self.rows_of = [np.flatnonzero(u) for u in self.used]  # per camera, the hypotheses using it
         self.q = np.zeros((n_cams, H, 2))
         self.W = np.zeros((n_cams, H, 2, 2))
         self.D = np.zeros((n_cams, H, 2, 2))  # rᵀ D r: squared residual distance (px²)
@@ -85,22 +86,24 @@ def solve(cams, obs: Observations, plane=None, start=None):
                 front = np.ones(H, bool)
             p_finite = _finite(p)
             for c, cam in enumerate(cams):
-                use = obs.used[c]
-                if not use.any():
+                # only the hypotheses that use this camera (about half of them on an 8-camera rig)
+                rows = obs.rows_of[c]
+                if rows.size == 0:
                     continue
-                q_hat, J = cam.project_with_point_jacobian(p_finite)
-                r = np.where(use[:, None], obs.q[c] - _finite(q_hat), 0.0)
-                J = np.where(use[:, None, None], _finite(J), 0.0)
-                Wr = np.einsum("nij,nj->ni", obs.W[c], r)
-                A += J.transpose(0, 2, 1) @ (obs.W[c] @ J)  # JᵀWJ: matmul, a quarter of einsum's time
+                q_hat, J = cam.project_with_point_jacobian(p_finite[rows])
+                r = obs.q[c, rows] - _finite(q_hat)
+                J = _finite(J)
+                W = obs.W[c, rows]
+                Wr = np.einsum("nij,nj->ni", W, r)
+                A[rows] += J.transpose(0, 2, 1) @ (W @ J)  # JᵀWJ: matmul, a quarter of einsum's time
                 if not final:
-                    g += np.einsum("nki,nk->ni", J, Wr)
+                    g[rows] += np.einsum("nki,nk->ni", J, Wr)
                 else:
-                    front &= ~use | np.all(np.isfinite(q_hat), axis=1)
-                    chi2 += np.einsum("ni,ni->n", r, Wr)
+                    front[rows] &= np.all(np.isfinite(q_hat), axis=1)
+                    chi2[rows] += np.einsum("ni,ni->n", r, Wr)
                     # residual as a distance: full for the reference, across the stripe for the others
-                    rsum += np.einsum("ni,nij,nj->n", r, obs.D[c], r)
-                    along = np.fmax(along, np.abs(np.einsum("ni,ni->n", obs.T[c], r)))
+                    rsum[rows] += np.einsum("ni,nij,nj->n", r, obs.D[c, rows], r)
+                    along[rows] = np.fmax(along[rows], np.abs(np.einsum("ni,ni->n", obs.T[c, rows], r)))
             if plane is not None:
                 rp = plane.offset - p_finite @ plane.normal
                 A += w_plane[:, None, None] * plane.normal[None, :, None] * plane.normal[None, None, :]
