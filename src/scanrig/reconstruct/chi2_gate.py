@@ -11,8 +11,9 @@ from scipy.stats import chi2 as chi2_dist
 def chi2_quantile(probability: float, dof) -> np.ndarray:
     """``scipy.stats.chi2.ppf(probability, dof)``, each distinct ``dof`` computed once.
 
-    scipy's ppf costs about 150 ns per element and 0.1 ms per call; the gates of a frame ask it for
-    thousands of hypotheses that have two or three distinct degrees of freedom between them.
+    scipy's ppf costs about 0.2 ms a call and 0.7 µs an element (2.3 ms for 3 000 degrees of
+    freedom; this function 0.1 ms), and the gates of a frame ask it for thousands of hypotheses
+    that have two or three distinct degrees of freedom between them.
 
     Parameters
     ----------
