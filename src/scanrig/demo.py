@@ -375,7 +375,7 @@ class _Run:
         """
         from scanrig.scan.protocol import Beam
         from scanrig.sim.laser import raster_poses
-        from scanrig.sim.parallel import run_indexed
+        from scanrig.parallel import run_indexed
 
         n = self.settings.budget
         poses = raster_poses(self.scene.laser, self.scene.center_m, self.scene.radius_m, n, "stripe")
@@ -410,7 +410,8 @@ class _Run:
     def reconstruct(self) -> str:
         from scanrig.reconstruct.pipeline import reconstruct_session
 
-        info = reconstruct_session(self.out, seed=self.summary.seed, comments=("scanrig demo",))
+        info = reconstruct_session(self.out, seed=self.summary.seed, comments=("scanrig demo",),
+                                   workers=self.settings.workers)
         self.summary.n_points = int(info["points"])
         # Spots: candidates the cross-camera matching left out; stripes: multi-view pairs off the light plane.
         self.summary.n_rejected = int(info["n_candidates"] - info["n_candidates_used"] if self.mode == "spot"

@@ -32,6 +32,8 @@ def command(
              "sigma along the covariance's largest axis; for multi-view stripes, the largest sigma "
              "across the stripe (the surface normal is perpendicular to it). "
              "Default: 0.1 (the accuracy target) for multi-view stripes, no cut for spots.")] = None,
+    workers: Annotated[int, typer.Option(
+        min=1, help="Worker processes that solve the stripe frames (the points do not depend on it).")] = 1,
 ):
     """Triangulate the laser traces of a session into points.ply, rejecting reflections.
 
@@ -64,6 +66,7 @@ def command(
                                       keep_ambiguous=keep_ambiguous, single_view=single_view, seed=seed,
                                       light_plane_path=light_plane,
                                       max_sigma_m=None if max_sigma_mm is None else max_sigma_mm * 1e-3,
+                                      workers=workers,
                                       comments=(f"command: {command_line}",),
                                       progress=lambda done, total: progress("reconstructing", done, total))
     head = f"{summary['points']} points from {summary['frames']} frames ({summary['mode']}, seed {seed}): "

@@ -67,6 +67,7 @@ def reconstruct_session(
     comments=(),
     progress=None,
     max_sigma_m: float | None = None,
+    workers: int = 1,
 ) -> dict:
     """Reconstruct the points of a session and write ``points.ply``.
 
@@ -101,6 +102,9 @@ def reconstruct_session(
         Leave out points with a larger predicted sigma, metres (every mode). Default: the 0.1 mm
         accuracy target in multi-view stripe mode (:mod:`scanrig.reconstruct.stripes.precision`),
         no cut in spot and classic single-camera modes.
+    workers : int
+        Multi-view stripe mode: processes that solve the frames (the points are the same for any
+        number).
 
     Returns
     -------
@@ -149,7 +153,7 @@ def reconstruct_session(
     else:
         cloud, summary = reconstruct_stripes(rig, table, frames, np.random.default_rng(seed), sigma_floor_px,
                                              gate_probability, min_angle_rad, single_view, progress,
-                                             max_sigma_m=max_sigma_m)
+                                             max_sigma_m=max_sigma_m, workers=workers)
     if max_sigma_m is not None and mode != "stripe":  # multi-view stripe mode made its own cut
         cloud, imprecise = split_by_precision(cloud, max_sigma_m)
         summary.update(points=len(cloud), points_imprecise=len(imprecise),

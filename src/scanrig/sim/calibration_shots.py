@@ -225,7 +225,7 @@ def write_calibration(out: Path, room: Scene, rig: Rig, n_shots: int, target_kin
 
     Poses are drawn from ``rng`` in order; each shot's noise has its own spawned generator.
     """
-    from scanrig.sim.parallel import run_indexed
+    from scanrig.parallel import run_indexed
     from scanrig.targets import save_target
 
     target = default_target(target_kind)

@@ -138,7 +138,7 @@ def write_light_plane_shots(out: Path, room, rig, target, n_shots: int, rng: np.
     list of str
         The stems written.
     """
-    from scanrig.sim.parallel import run_indexed
+    from scanrig.parallel import run_indexed
 
     camera = rig[camera_name or rig.names[0]]
     beam = laser_sheet(camera)

@@ -34,10 +34,10 @@ from scanrig.geometry import Rig
 from scanrig.io.atomic import write_bytes_atomic, write_text_atomic
 from scanrig.io.ply import write_ply
 from scanrig.io.rig_file import save_rig
+from scanrig.parallel import run_indexed
 from scanrig.sim.colour import write_frame
 from scanrig.sim.laser import BeamPose, raster_poses, trace_laser
 from scanrig.sim.library import load_scene, scene_path
-from scanrig.sim.parallel import run_indexed
 from scanrig.sim.render import CameraView
 from scanrig.sim.rigs import default_rig
 from scanrig.sim.scene import Scene

@@ -28,9 +28,9 @@ from scanrig.geometry import Camera, Rig, RigidTransform
 from scanrig.io.object_poses import object_poses_path, write_object_poses
 from scanrig.io.rig_file import save_rig
 from scanrig.io.session import write_image
+from scanrig.parallel import run_indexed
 from scanrig.sim.laser import BeamPose, trace_laser
 from scanrig.sim.light_plane_shots import write_true_light_plane
-from scanrig.sim.parallel import run_indexed
 from scanrig.sim.pixel_rays import PixelRayTable
 from scanrig.sim.render import CameraView
 from scanrig.sim.rigs import default_rig

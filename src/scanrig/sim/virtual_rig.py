@@ -50,7 +50,7 @@ class VirtualRig:
         Source of image noise.
     workers : int, optional
         Processes that render the cameras' laser-free backgrounds at the first grab (one camera
-        each; default :func:`scanrig.sim.parallel.run_indexed`'s).
+        each; default :func:`scanrig.parallel.run_indexed`'s).
     """
 
     def __init__(self, scene, rig: Rig, rng: np.random.Generator, workers: int | None = None):
@@ -100,7 +100,7 @@ class VirtualRig:
     def _render_backgrounds(self) -> None:
         """Render every camera's laser-free background (:attr:`CameraView.background_e`), the cameras
         in parallel, unless done; a process forked afterwards inherits them."""
-        from scanrig.sim.parallel import run_indexed
+        from scanrig.parallel import run_indexed
 
         todo = [view for view in self._views if "background_e" not in view.__dict__]
         if not todo:

@@ -8,6 +8,7 @@ import pyarrow.compute as pc
 
 from scanrig.errors import InputError
 from scanrig.geometry.triangulation import MIN_TRIANGULATION_ANGLE_RAD
+from scanrig.parallel import run_indexed
 from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
 from scanrig.reconstruct.points import PointCloud
 from scanrig.reconstruct.stripes.epipolar import frame_branches
@@ -29,6 +30,7 @@ def reconstruct_stripes(
     progress=None,
     estimate_floor: bool = True,
     max_sigma_m: float | None = None,
+    workers: int = 1,
 ):
     """Points of every stripe frame of a traces table.
 
@@ -41,7 +43,8 @@ def reconstruct_stripes(
     frames : list of str
         Frame stems in natural order (defines the ``frame`` index).
     rng : numpy.random.Generator
-        For the robust plane fits.
+        Draws one seed per frame, the generator of that frame's robust plane fit: the points do not
+        depend on ``workers``.
     sigma_floor_px, gate_probability, min_angle_rad
         As in spot mode.
     single_view : bool
@@ -55,6 +58,8 @@ def reconstruct_stripes(
         Points whose error across their stripe may exceed this (metres) are left out; default the
         0.1 mm accuracy target (:mod:`scanrig.reconstruct.stripes.precision` says why;
         ``numpy.inf`` keeps every point that passed its tests).
+    workers : int
+        Processes that solve the frames (forked; one runs them in this process).
 
     Returns
     -------
@@ -93,17 +98,22 @@ def reconstruct_stripes(
             for views in views_of.values():
                 inflate_views(rig, views, edges, s2)
     limit_m = TARGET_SIGMA_M if max_sigma_m is None else max_sigma_m
+    frame_seeds = rng.integers(2**63, size=len(frames))
+
+    def solve_frame(f: int):
+        if f not in views_of:
+            return None
+        return reconstruct_stripe_frame(rig, views_of[f], f, np.random.default_rng(frame_seeds[f]), gate_probability,
+                                        min_angle_rad, single_view, branches_of[f], limit_m)
+
+    solved = [x for x in run_indexed(solve_frame, len(frames), workers,
+                                     None if progress is None else lambda done: progress(done, len(frames)))
+              if x is not None]
     totals = dict(multi_view=0, single_view=0, imprecise=0, off_plane_pairs=0, pairs=0, plane=0)
-    clouds = []
-    for f in range(len(frames)):
-        if f in views_of:
-            cloud, counts = reconstruct_stripe_frame(rig, views_of[f], f, rng, gate_probability, min_angle_rad,
-                                                     single_view, branches_of[f], limit_m)
-            clouds.append(cloud)
-            for k, v in counts.items():
-                totals[k] += v
-        if progress is not None:
-            progress(f + 1, len(frames))
+    for _, counts in solved:
+        for k, v in counts.items():
+            totals[k] += v
+    clouds = [cloud for cloud, _ in solved]
     cloud = PointCloud.concatenate(clouds)
     summary = dict(frames=len(frames), points=len(cloud), frames_with_plane=totals["plane"],
                    points_multi_view=totals["multi_view"], points_single_view=totals["single_view"],

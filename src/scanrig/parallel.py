@@ -1,7 +1,8 @@
 """Run ``fn(i)`` for ``i in range(n)`` in forked worker processes, reporting progress.
 
-The work function and its data are inherited by fork (no pickling of scenes or Embree handles);
-results (small) come back in order. Without ``fork`` (or with one worker) it runs serially.
+The work function and its data are inherited by fork (no pickling of the simulator's scenes and
+Embree handles, or of a session's detections); results (small) come back in order. Without
+``fork`` (or with one worker) it runs serially.
 """
 
 from __future__ import annotations
