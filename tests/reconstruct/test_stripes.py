@@ -111,6 +111,9 @@ def test_frames_solved_by_two_workers_give_the_same_points_in_the_same_order(rig
     assert len(clouds[0]) > 100
     for name in ("p_world", "sigma", "n_views", "residual_px", "frame", "flags"):
         np.testing.assert_array_equal(getattr(clouds[0], name), getattr(clouds[1], name))
+    with pytest.raises(InputError, match=r"workers must be an integer of at least 1, got 0"):
+        reconstruct_session(tmp_path, out_path=tmp_path / "points_0.ply", workers=0)
+    assert not (tmp_path / "points_0.ply").exists()
 
 
 def test_stripes_need_two_cameras_of_the_rig(rig):

@@ -74,6 +74,8 @@ def reconstruct_stripes(
     """
     if len(rig) < 2:
         raise InputError(f"multi-view reconstruction needs at least 2 cameras, the rig has {len(rig)}")
+    if not (isinstance(workers, int) and workers >= 1):
+        raise InputError(f"workers must be an integer of at least 1, got {workers!r}")
     stripes = table.filter(pc.equal(table.column("kind"), "stripe"))
     unknown = sorted(set(stripes.column("camera").unique().to_pylist()) - set(rig.names))
     if unknown:
