@@ -82,12 +82,10 @@ def exposure_gains(image: np.ndarray, dark: np.ndarray) -> np.ndarray:
         whose laser-on value is below the upper one; 1 where fewer than ``MIN_PIXELS`` are.
         ``C = 1`` for a grey frame.
     """
-    full_scale = float(np.iinfo(image.dtype).max)
-    low, high = (level * full_scale for level in USABLE_LEVELS)
     step = max(1, int(np.sqrt(image.shape[0] * image.shape[1] / SAMPLE_PIXELS)))
     channels = 1 if image.ndim == 2 else image.shape[2]
     on, off = (np.ascontiguousarray(f[::step, ::step].reshape(-1, channels).T, dtype=np.float32) for f in (image, dark))
-    usable = (off >= low) & (off < high) & (on < high)  # (C, n)
+    usable = _usable(on, off, image.dtype)  # (C, n)
     gains = np.ones(channels)
     for c in np.flatnonzero(np.count_nonzero(usable, axis=1) >= MIN_PIXELS):
         ratio = on[c, usable[c]] / off[c, usable[c]]
@@ -99,6 +97,14 @@ def mismatched(gains: np.ndarray) -> np.ndarray:
     """Channels ``(C,)`` bool whose gains ``(C,)`` (:func:`exposure_gains`) depart from 1 by more
     than ``GAIN_TOLERANCE``."""
     return np.abs(gains - 1.0) > GAIN_TOLERANCE
+
+
+def _usable(on: np.ndarray, off: np.ndarray, dtype) -> np.ndarray:
+    """Pixels whose ratio measures the gain: laser-off value within ``USABLE_LEVELS`` of the full
+    scale of ``dtype``, laser-on value below the upper one (arrays of one shape, bool the same)."""
+    full_scale = float(np.iinfo(dtype).max)
+    low, high = (level * full_scale for level in USABLE_LEVELS)
+    return (off >= low) & (off < high) & (on < high)
 
 
 def row_gains(image: np.ndarray, dark: np.ndarray) -> np.ndarray | None:
@@ -170,8 +176,6 @@ def _band_gains(image: np.ndarray, dark: np.ndarray, n_bands: int) -> tuple[np.n
     of 1 DN (1 % at 100 DN). Its standard error is from the interquartile range (/ 1.349), with
     the middle half's mean's efficiency (about 0.84).
     """
-    full_scale = float(np.iinfo(image.dtype).max)
-    low, high = (level * full_scale for level in USABLE_LEVELS)
     channels = 1 if image.ndim == 2 else image.shape[2]
     row_step = 2
     col_step = max(1, int(round(image.shape[1] * (BAND_ROWS // row_step) / BAND_SAMPLES)))
@@ -179,7 +183,7 @@ def _band_gains(image: np.ndarray, dark: np.ndarray, n_bands: int) -> tuple[np.n
     on, off = (np.asarray(f[rows, ::col_step], np.float32).reshape(n_bands, -1, channels).transpose(0, 2, 1)
                for f in (image, dark))  # (bands, C, n): the sorts and sums below along contiguous rows
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where((off >= low) & (off < high) & (on < high), on / off, np.inf)
+        ratio = np.where(_usable(on, off, image.dtype), on / off, np.inf)
     ratio.sort(axis=-1)  # the unusable (inf) last
     count = np.count_nonzero(np.isfinite(ratio), axis=-1)  # (bands, C)
     first, stop = count // 4, count - count // 4
