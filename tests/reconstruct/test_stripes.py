@@ -209,3 +209,40 @@ def test_the_pencil_of_epipolar_lines_finds_every_crossing_the_dense_test_finds(
         np.testing.assert_array_equal(np.c_[seg[kept], line[kept]], dense)
         if not at_epipoles:  # the candidates are the crossings, but for the margin's few
             assert seg.size <= len(dense) + 3
+
+
+def test_the_plane_gate_solves_again_only_hypotheses_that_can_pass_it():
+    """``gate_on_plane`` solves with the plane only the hypotheses within their χ² gate without it,
+    because the plane's term only adds to χ²: on a 4-camera ring with a reflection, every other
+    solved hypothesis is over its gate with the plane too; and a subset of the observations solves
+    to the same rows, to the last bit, as the whole."""
+    from scanrig.reconstruct.chi2_gate import chi2_quantile
+    from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
+    from scanrig.reconstruct.stripes.epipolar import frame_branches, hypotheses
+    from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, three_view_pass
+    from scanrig.reconstruct.stripes.solve import Observations, SolvedHypotheses, solve
+    from scanrig.reconstruct.stripes.views import frame_views
+
+    rig4 = ring_rig(azimuths_deg=(-60.0, -20.0, 20.0, 60.0), height_m=0.6)
+    views = frame_views(rig4, stripe_traces(rig4, [0.02], np.random.default_rng(63), SIGMA_PX, reflection_camera=1),
+                        np.eye(2) * SIGMA_FLOOR_PX**2)
+    branches = frame_branches(rig4, views)
+    hyps = []
+    for ref in range(len(rig4)):
+        mine = {j: branches[ref, j] for j in range(len(rig4)) if j != ref and branches[ref, j][0].size}
+        choice = hypotheses(len(rig4), ref, len(views[ref].q), mine)
+        obs = Observations(views, ref, choice)
+        hyps.append(SolvedHypotheses(ref, choice, obs, *solve(rig4.cameras, obs)))
+    plane = fit_frame_plane(hyps, [three_view_pass(h, GATE_PROBABILITY) for h in hyps], np.random.default_rng(0))
+    assert plane is not None
+    over = 0
+    for h in hyps:
+        every = solve(rig4.cameras, h.obs, plane, start=h.p)
+        gate = chi2_quantile(GATE_PROBABILITY, h.n_other)
+        skipped = h.ok & every[4] & (h.chi2 > gate)
+        over += int(skipped.sum())
+        assert np.all(every[2][skipped] > gate[skipped])
+        rows = np.flatnonzero(h.ok)[::3]
+        for whole, part in zip(every, solve(rig4.cameras, h.obs.take(rows), plane, start=h.p[rows])):
+            np.testing.assert_array_equal(whole[rows], part)
+    assert over > 100  # the reflection's hypotheses that the gate no longer solves again

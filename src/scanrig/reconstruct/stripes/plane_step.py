@@ -70,11 +70,18 @@ def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_pr
     if plane is None:
         return s_multi, h.p, h.cov, h.residual_px
     m = h.n_other
+    gate = chi2_quantile(gate_probability, m)
     # the plane measures depth only where the reference ray crosses it at an angle
     crossing = np.arcsin(np.clip(np.abs(h.obs.dirs[h.ref] @ plane.normal), 0.0, 1.0)) >= min_angle_rad
-    p2, cov2, chi2_2, resid2, ok2 = solve(cams, h.obs, plane, start=h.p)
+    # the plane's term only adds to χ², so a hypothesis over its gate without the plane is over it
+    # with the plane too: only the others are solved again (on 8 cameras, 43 % of them)
+    again = np.flatnonzero(h.ok & crossing & (h.chi2 <= gate))
+    p2, cov2, chi2_2, resid2 = h.p.copy(), h.cov.copy(), np.full(len(m), np.inf), h.residual_px.copy()
+    ok2 = np.zeros(len(m), bool)
+    p2[again], cov2[again], chi2_2[again], resid2[again], ok2[again] = solve(cams, h.obs.take(again), plane,
+                                                                            start=h.p[again])
     with_plane = h.ok & ok2 & crossing
-    passed = with_plane & (chi2_2 <= chi2_quantile(gate_probability, m))
+    passed = with_plane & (chi2_2 <= gate)
     # a two-view point must be located by its own views, the plane only checking and
     # sharpening it: where the views leave it loose, the plane test cannot see errors
     # (a reflection's ray meets the plane somewhere) that the plane-made sigma would hide;

@@ -60,6 +60,15 @@ class Observations:
             self.D[c] = np.where(use[:, None, None], D, 0.0)
             self.rows.append((c, rows, np.where(use, sig, np.nan)))
 
+    def take(self, index: np.ndarray) -> Observations:
+        """The observations of the hypotheses ``index`` ``(k,)`` (int), in that order."""
+        out = object.__new__(Observations)
+        out.used = self.used[:, index]
+        out.rows_of = [np.flatnonzero(u) for u in out.used]
+        out.q, out.W, out.D, out.T, out.dirs = (a[:, index] for a in (self.q, self.W, self.D, self.T, self.dirs))
+        out.rows = [(c, rows[index], sig[index]) for c, rows, sig in self.rows]
+        return out
+
 
 def solve(cams, obs: Observations, plane=None, start=None):
     """Maximum-likelihood points of hypotheses (Gauss–Newton on pixels, optional plane term).
