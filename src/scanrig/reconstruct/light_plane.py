@@ -178,7 +178,9 @@ def fit_plane_robust(p_world: np.ndarray, sigma_m: np.ndarray | None, rng: np.ra
     if len(normals) == 0:
         return none
     if cov_m is not None:
-        s_all = np.sqrt(np.maximum(np.einsum("ti,nij,tj->nt", normals, cov, normals), 0.0))
+        # optimize: (cov n) first, then the dot with n; unoptimised einsum loops over every
+        # (point, trial, i, j), 16 times slower on 30 000 points (an 8-camera frame)
+        s_all = np.sqrt(np.maximum(np.einsum("ti,nij,tj->nt", normals, cov, normals, optimize=True), 0.0))
     else:
         s_all = sigma[:, None]
     inlier_counts = (np.abs(p @ normals.T - offsets) <= inlier_sigmas * s_all).sum(axis=0)
