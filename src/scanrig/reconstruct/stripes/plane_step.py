@@ -52,7 +52,8 @@ def gate_on_plane(cams, h: SolvedHypotheses, s_multi: np.ndarray, plane, gate_pr
     """Which hypotheses pass, with the plane as one more measurement where it measures depth.
 
     Where the reference ray crosses the plane at ``min_angle_rad`` or more, each hypothesis is
-    re-solved with the plane and must pass the χ² gate with ``m`` degrees of freedom. A two-view
+    re-solved with the plane and must pass the χ² gate with ``m`` degrees of freedom (those over
+    that gate without the plane are not solved again: the plane's term only adds to χ²). A two-view
     point has no other test, so the test must have power at the point's own scale: the two views
     must locate it (the plane sharpens it at most :data:`PLANE_GAIN_MAX` times), and the plane must
     be known there (its position sigma at most :data:`PLANE_SIGMA_RATIO_MAX` times the point's
