@@ -10,12 +10,17 @@ from scanrig.geometry.uncertainty import sigma_from_covariance
 from scanrig.io.rig_file import save_rig
 from scanrig.laser.traces import write_traces
 from scanrig.reconstruct.candidates import frame_order
+from scanrig.reconstruct.chi2_gate import chi2_quantile
+from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
 from scanrig.reconstruct.flags import Flag
 from scanrig.reconstruct.pipeline import reconstruct_session
 from scanrig.reconstruct.points import read_points
 from scanrig.reconstruct.stripes import reconstruct_stripes
-from scanrig.reconstruct.stripes.epipolar import crossing, near_crossings
+from scanrig.reconstruct.stripes.epipolar import crossing, frame_branches, hypotheses, near_crossings
+from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, three_view_pass
 from scanrig.reconstruct.stripes.precision import sigma_across_stripe
+from scanrig.reconstruct.stripes.solve import Observations, SolvedHypotheses, solve
+from scanrig.reconstruct.stripes.views import frame_views
 from tests.reconstruct.synth import height_field, ring_rig, stripe_traces
 
 #: Noise across the stripe (px); a Gaussian fit on a good stripe reaches 0.05-0.25 px (notes §2).
@@ -216,13 +221,6 @@ def test_the_plane_gate_solves_again_only_hypotheses_that_can_pass_it():
     because the plane's term only adds to χ²: on a 4-camera ring with a reflection, every other
     solved hypothesis is over its gate with the plane too; and a subset of the observations solves
     to the same rows, to the last bit, as the whole."""
-    from scanrig.reconstruct.chi2_gate import chi2_quantile
-    from scanrig.reconstruct.correspondence import GATE_PROBABILITY, SIGMA_FLOOR_PX
-    from scanrig.reconstruct.stripes.epipolar import frame_branches, hypotheses
-    from scanrig.reconstruct.stripes.plane_step import fit_frame_plane, three_view_pass
-    from scanrig.reconstruct.stripes.solve import Observations, SolvedHypotheses, solve
-    from scanrig.reconstruct.stripes.views import frame_views
-
     rig4 = ring_rig(azimuths_deg=(-60.0, -20.0, 20.0, 60.0), height_m=0.6)
     views = frame_views(rig4, stripe_traces(rig4, [0.02], np.random.default_rng(63), SIGMA_PX, reflection_camera=1),
                         np.eye(2) * SIGMA_FLOOR_PX**2)
