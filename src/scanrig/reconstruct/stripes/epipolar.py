@@ -180,12 +180,10 @@ def hypotheses(n_cams: int, ref: int, n_ref: int, branches: dict):
     for c, (a_c, b_c) in branches.items():
         order = np.argsort(a_c, kind="stable")
         a_c, b_c = a_c[order], b_c[order]
-        start = np.searchsorted(a_c, choice[:, ref], "left")
-        count = np.searchsorted(a_c, choice[:, ref], "right") - start
-        rows = np.repeat(np.arange(len(choice)), count)
-        within = np.arange(rows.size) - np.repeat(np.cumsum(count) - count, count)
+        rows, pos = _ranges(np.searchsorted(a_c, choice[:, ref], "left"),
+                            np.searchsorted(a_c, choice[:, ref], "right"))
         extended = choice[rows].copy()
-        extended[:, c] = b_c[np.repeat(start, count) + within]
+        extended[:, c] = b_c[pos]
         choice = np.concatenate([choice, extended])
     return choice[(choice >= 0).sum(axis=1) >= 2]
 
