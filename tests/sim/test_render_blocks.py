@@ -49,14 +49,16 @@ def test_beamlets_evaluated_block_by_block_give_the_same_bits(monkeypatch):
         assert np.array_equal(a, b)
 
 
-def test_beamlets_sum_the_nearest_landings_within_their_reach():
+def test_beamlets_sum_every_landing_within_its_reach():
     rng = np.random.default_rng(8)
-    beams = _beamlets(rng)
+    beams = _beamlets(rng, m=120)
     x = np.column_stack([rng.uniform(-0.07, 0.07, 400), rng.normal(0, 5e-3, 400), np.zeros(400)])
     total = beams.evaluate(x)[0]
-    # brute force: the _MAX_NEIGHBOUR_BEAMS nearest landings, each counted within its own reach
+    # brute force: every beamlet at every point within its own reach of its landing
     dist = np.linalg.norm(x[:, None] - beams.landing[None], axis=2)
-    nearest = np.argsort(dist, axis=1)[:, :laser._MAX_NEIGHBOUR_BEAMS]
+    counted = dist <= beams.reach_m
+    # many points are within reach of more landings than a nearest-few search would keep
+    assert np.count_nonzero(counted.sum(axis=1) > 24) > 50
     want = np.zeros(len(x))
     for j in range(len(beams.power_W)):
         rel = x - beams.origin[j]
@@ -64,11 +66,26 @@ def test_beamlets_sum_the_nearest_landings_within_their_reach():
         w = beams.radius(z, j)
         rho2 = np.einsum("ij,ij->i", rel, rel) - z * z
         inten = 2 * beams.power_W[j] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
-        counted = (nearest == j).any(axis=1) & (dist[:, j] <= beams.reach_m[j]) & (z > 0)
-        want += np.where(counted, inten, 0.0)
+        want += np.where(counted[:, j] & (z > 0), inten, 0.0)
     assert np.count_nonzero(want) > 200
     # rho² = |rel|² - z² cancels (z ≈ |rel|): the two roundings agree to about 1e-12
     np.testing.assert_allclose(total, want, rtol=1e-9, atol=0)
+
+
+def test_the_dominant_beamlet_is_the_brightest_at_each_point():
+    rng = np.random.default_rng(9)
+    beams = _beamlets(rng)
+    x = np.column_stack([rng.uniform(-0.07, 0.07, 400), rng.normal(0, 5e-3, 400), np.zeros(400)])
+    total, propagation, path = beams.evaluate(x)
+    lit = total > 0
+    rel = x[:, None] - beams.origin[None]                                  # (n, m, 3)
+    z = np.einsum("nmj,mj->nm", rel, beams.direction)
+    w = beams.radius(z)
+    inten = 2 * beams.power_W / (np.pi * w * w) * np.exp(-2 * (np.einsum("nmj,nmj->nm", rel, rel) - z * z) / (w * w))
+    inten[(np.linalg.norm(x[:, None] - beams.landing[None], axis=2) > beams.reach_m) | (z <= 0)] = 0.0
+    brightest = inten.argmax(axis=1)
+    assert np.count_nonzero(lit) > 200
+    np.testing.assert_array_equal(propagation[lit], beams.direction[brightest[lit]])
 
 
 def test_pixel_rays_by_planes_are_the_pairwise_forms_bits():

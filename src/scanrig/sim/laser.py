@@ -34,9 +34,8 @@ SURFACE_EPS_M = 1e-5
 FOOTPRINT_RADII = 3.0
 #: Smallest cosine of incidence used to bound footprint elongation at grazing incidence.
 MIN_COS_FOOTPRINT = 0.1
-#: Beamlet sets up to this size are evaluated densely; larger ones only at their nearest landings.
+#: Beamlet sets up to this size are evaluated densely; larger ones only near their landings.
 _MAX_DENSE_BEAMS = 8
-_MAX_NEIGHBOUR_BEAMS = 24
 #: Ratio of the largest to the smallest reach of a class of beamlets (GaussianBeams.may_light).
 _REACH_CLASS_RATIO = 1.25
 #: Points per block in GaussianBeams.evaluate (its (point, beam) scratch arrays stay in the CPU cache).
@@ -142,46 +141,56 @@ class GaussianBeams:
     #: rays stop at that surface's tangent plane, since the beamlet is emitted by its whole footprint.
     emitter_normal: np.ndarray | None = None
     #: (M, 3) where each beamlet lands and (M,) how far its light reaches around that point: many
-    #: beamlets (a reflected stripe) are then evaluated only near where they land (k-d tree).
+    #: beamlets (a reflected stripe) are then evaluated only within reach of where they land.
     landing: np.ndarray | None = None
     reach_m: np.ndarray | None = None
 
     @cached_property
-    def _landing_tree(self):
-        """k-d tree of the landings (built once per beam set: a trace serves every camera)."""
-        from scipy.spatial import cKDTree
-
-        return cKDTree(self.landing)
-
-    @cached_property
     def _reach_classes(self) -> list:
-        """``(tree, largest reach)`` per class of beamlets of similar reach (:meth:`may_light`).
+        """``(tree, members, largest reach)`` per class of beamlets of similar reach.
 
         Beamlets are grouped by reach in classes of ratio :data:`_REACH_CLASS_RATIO`; each class
-        gets a k-d tree of its landings, built once per beam set. Largest reach first: that class
-        settles the most points, so fewer are left open for the others.
+        gets a k-d tree of its landings and the indices ``members`` of its beamlets, built once per
+        beam set (a trace serves every camera). Largest reach first: in :meth:`may_light` that
+        class settles the most points, so fewer are left open for the others.
         """
         from scipy.spatial import cKDTree
 
         reach_class = np.floor(np.log(self.reach_m / self.reach_m.min()) / np.log(_REACH_CLASS_RATIO))
-        return [(cKDTree(self.landing[reach_class == c]), float(self.reach_m[reach_class == c].max()))
-                for c in np.unique(reach_class)[::-1]]
+        classes = []
+        for c in np.unique(reach_class)[::-1]:
+            members = np.flatnonzero(reach_class == c)
+            classes.append((cKDTree(self.landing[members]), members, float(self.reach_m[members].max())))
+        return classes
 
-    def _candidates(self, x: np.ndarray):
-        """Beam indices worth evaluating at points ``x`` (N, 3): ``(N, k)`` ints and a validity mask.
+    def _pairs(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (point, beam) pairs worth evaluating at points ``x`` (N, 3), sorted by point, then beam.
 
-        Few beams (or the laser head's): all of them. Beamlets evaluated near their landings:
-        the ``k`` = :data:`_MAX_NEIGHBOUR_BEAMS` landings nearest each point within the largest
-        reach, valid where within their own reach.
+        Few beams (or the laser head's): every pair. Beamlets evaluated near their landings: each
+        beamlet at every point within its own reach of its landing, found class by class of
+        similar reach (:meth:`_reach_classes`) by a search of the points' tree against the class's,
+        within the class's largest reach.
+
+        Returns
+        -------
+        point, beam : ndarray of shape (p,), int
         """
-        m = len(self.power_W)
+        from scipy.spatial import cKDTree
+
+        n, m = len(x), len(self.power_W)
         if self.landing is None or m <= _MAX_DENSE_BEAMS:
-            return np.broadcast_to(np.arange(m), (len(x), m)), np.ones((len(x), m), dtype=bool)
-        k = min(m, _MAX_NEIGHBOUR_BEAMS)
-        dist, idx = self._landing_tree.query(x, k=k, distance_upper_bound=float(self.reach_m.max()))
-        valid = idx < m
-        idx = np.where(valid, idx, 0)
-        return idx, valid & (dist <= self.reach_m[idx])
+            return np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
+        points = cKDTree(x)
+        keys = []
+        for tree, members, top_m in self._reach_classes:
+            near = points.sparse_distance_matrix(tree, top_m, output_type="ndarray")
+            beam = members[near["j"]]
+            within = near["v"] <= self.reach_m[beam]
+            keys.append(near["i"][within].astype(np.int64) * m + beam[within])
+        # one sort of point-major keys: the pairs' order, hence every sum over them, does not
+        # depend on the search's order (nor on how the points are cut into blocks)
+        key = np.sort(np.concatenate(keys))
+        return key // m, key % m
 
     def radius(self, z: np.ndarray, idx=slice(None)) -> np.ndarray:
         """1/e² radius at distance ``z`` along the axis (broadcast over beams ``idx``)."""
@@ -216,7 +225,7 @@ class GaussianBeams:
         # the point's. In each class of beamlets of similar reach (_reach_classes) the nearest
         # landing is tested against the class's largest reach.
         may = np.zeros(len(x), dtype=bool)
-        for tree, top_m in self._reach_classes:
+        for tree, _, top_m in self._reach_classes:
             open_ = np.flatnonzero(~may)
             dist, _ = tree.query(x[open_], distance_upper_bound=top_m + reach_m.max(initial=0.0))
             may[open_] = dist - reach_m[open_] <= top_m
@@ -256,25 +265,26 @@ class GaussianBeams:
 
     def _evaluate_block(self, x: np.ndarray):
         """:meth:`evaluate` at points ``x`` (n, 3): summed irradiance (n,), the dominant beam (n,)
-        and the distance along its axis (n,). Where no beam reaches: zero, the first candidate, zero.
+        and the distance along its axis (n,). Where no beam reaches: zero, beam 0, zero.
         """
-        idx, valid = self._candidates(x)                                  # (n, k)
-        # only the valid (point, beam) pairs are evaluated: most candidates are out of reach
-        flat = np.flatnonzero(valid)
-        pair = np.take(idx, flat)
-        rel = np.take(x, flat // idx.shape[1], axis=0) - np.take(self.origin, pair, axis=0)     # (p, 3)
-        z_pair = np.einsum("ij,ij->i", rel, np.take(self.direction, pair, axis=0))
+        n = len(x)
+        point, beam = self._pairs(x)                                      # (p,), point-sorted
+        rel = np.take(x, point, axis=0) - np.take(self.origin, beam, axis=0)            # (p, 3)
+        z_pair = np.einsum("ij,ij->i", rel, np.take(self.direction, beam, axis=0))
         rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
-        w = self.radius(z_pair, pair)
-        inten_pair = 2 * self.power_W[pair] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
+        w = self.radius(z_pair, beam)
+        inten_pair = 2 * self.power_W[beam] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
         inten_pair[z_pair <= 0] = 0.0
-        inten = np.zeros(idx.shape)
-        inten.ravel()[flat] = inten_pair
-        z = np.zeros(idx.shape)
-        z.ravel()[flat] = z_pair
-        dominant = inten.argmax(axis=1)[:, None]
-        return (inten.sum(axis=1), np.take_along_axis(idx, dominant, axis=1)[:, 0],
-                np.take_along_axis(z, dominant, axis=1)[:, 0])
+        total = np.bincount(point, weights=inten_pair, minlength=n)
+        arg, z = np.zeros(n, dtype=np.int64), np.zeros(n)
+        if point.size:
+            # each point's dominant beam: the first of its pairs with the largest irradiance
+            starts = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
+            top = np.maximum.reduceat(inten_pair, starts)
+            best = np.flatnonzero(inten_pair == np.repeat(top, np.diff(np.r_[starts, point.size])))
+            best = best[np.r_[True, point[best[1:]] != point[best[:-1]]]]
+            arg[point[best]], z[point[best]] = beam[best], z_pair[best]
+        return total, arg, z
 
 
 @dataclass(frozen=True)
