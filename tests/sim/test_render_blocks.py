@@ -76,12 +76,13 @@ def test_the_dominant_beamlet_is_the_brightest_at_each_point():
     rng = np.random.default_rng(9)
     beams = _beamlets(rng)
     x = np.column_stack([rng.uniform(-0.07, 0.07, 400), rng.normal(0, 5e-3, 400), np.zeros(400)])
-    total, propagation, path = beams.evaluate(x)
+    total, propagation, _ = beams.evaluate(x)
     lit = total > 0
     rel = x[:, None] - beams.origin[None]                                  # (n, m, 3)
     z = np.einsum("nmj,mj->nm", rel, beams.direction)
     w = beams.radius(z)
-    inten = 2 * beams.power_W / (np.pi * w * w) * np.exp(-2 * (np.einsum("nmj,nmj->nm", rel, rel) - z * z) / (w * w))
+    rho2 = np.einsum("nmj,nmj->nm", rel, rel) - z * z
+    inten = 2 * beams.power_W / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
     inten[(np.linalg.norm(x[:, None] - beams.landing[None], axis=2) > beams.reach_m) | (z <= 0)] = 0.0
     brightest = inten.argmax(axis=1)
     assert np.count_nonzero(lit) > 200
