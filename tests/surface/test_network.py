@@ -41,11 +41,13 @@ def test_copies_are_independent_and_output_layer_is_linear_in_features(architect
     torch.testing.assert_close(nets(uv2)[1:], nets(uv)[1:])
 
 
-@pytest.mark.parametrize("architecture, depth", [("ridge", 1), ("mlp", 2), ("mlp", 3)])
-def test_hand_written_backward_is_autograds_gradient(architecture, depth):
+@pytest.mark.parametrize("architecture, depth, logistic_tanh",
+                         [("ridge", 1, False), ("mlp", 2, False), ("mlp", 3, False), ("mlp", 2, True), ("mlp", 3, True)])
+def test_hand_written_backward_is_autograds_gradient(architecture, depth, logistic_tanh):
     # blocks 0 and 2 share copy 1, copy 2 has none: its gradient must be zero
     gen = torch.Generator().manual_seed(4)
     nets = HeightFieldNets(3, hidden=6, depth=depth, architecture=architecture, generator=gen)
+    nets.logistic_tanh = logistic_tanh  # both forms of tanh, whichever this CPU runs faster
     nets.set_output(torch.randn(3, 7, generator=gen))
     uv = torch.rand(3, 11, 2, generator=gen, dtype=torch.float32) * 2 - 1
     copies = torch.tensor([1, 0, 1])
@@ -59,6 +61,27 @@ def test_hand_written_backward_is_autograds_gradient(architecture, depth):
     for param, reference in zip(nets.hidden_parameters(), expected):
         torch.testing.assert_close(param.grad, reference, rtol=1e-5, atol=1e-6)
         assert torch.all(param.grad[2] == 0) and torch.any(param.grad[:2] != 0)
+
+
+def test_both_forms_of_tanh_give_the_same_network():
+    # tanh z and 2 sigmoid(2 z) - 1 agree to float32 rounding, in the values, their training
+    # activations and their gradients
+    gen = torch.Generator().manual_seed(6)
+    nets = HeightFieldNets(4, hidden=24, depth=2, architecture="mlp", generator=gen)
+    nets.set_output(torch.randn(4, 25, generator=gen))
+    uv = torch.rand(4, 500, 2, generator=gen) * 2 - 1
+    grad_output = torch.randn(4, 500, generator=gen)
+    outputs = {}
+    for logistic in (False, True):
+        nets.logistic_tanh = logistic
+        layers = nets.training_activations(uv)
+        nets.backward(layers, grad_output)
+        outputs[logistic] = (nets(uv).detach(), layers[-1], [p.grad.clone() for p in nets.hidden_parameters()])
+    (z0, act0, grad0), (z1, act1, grad1) = outputs[False], outputs[True]
+    assert (act1 - act0).abs().max() < 1e-6
+    torch.testing.assert_close(z1, z0, rtol=0, atol=1e-5)
+    for g0, g1 in zip(grad0, grad1):
+        torch.testing.assert_close(g1, g0, rtol=1e-4, atol=1e-4 * g0.abs().max().item())
 
 
 @pytest.mark.parametrize("loss", ["mse", "huber", "hampel"])
