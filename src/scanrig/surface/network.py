@@ -154,13 +154,7 @@ class HeightFieldNets(torch.nn.Module):
         h = uv.transpose(1, 2)
         for w, b in self._hidden_layers(copies):
             w, b = self._layer_operands(w, b)
-            h = torch.baddbmm(b.transpose(1, 2), w.transpose(1, 2), h)
-            if self.logistic_tanh:  # 2 s - 1 into a new tensor: the sigmoid's backward reads s
-                h = torch.sigmoid(h).mul(2.0).sub_(1.0)
-            elif self.tanh_units:
-                h = torch.tanh(h)
-            else:
-                h = torch.sigmoid(h)
+            h = self._activate(torch.baddbmm(b.transpose(1, 2), w.transpose(1, 2), h), keep_sigmoid=True)
         return h
 
     @torch.no_grad()
@@ -191,12 +185,7 @@ class HeightFieldNets(torch.nn.Module):
             out[:, -1] = 1.0
             hidden = out[:, :-1]
             torch.bmm(torch.cat(self._layer_operands(w, b), dim=1).transpose(1, 2), layers[-1], out=hidden)
-            if self.logistic_tanh:
-                hidden.sigmoid_().mul_(2.0).sub_(1.0)
-            elif self.tanh_units:
-                hidden.tanh_()
-            else:
-                hidden.sigmoid_()
+            self._activate(hidden, keep_sigmoid=False)
             layers.append(out)
         return layers
 
@@ -249,6 +238,17 @@ class HeightFieldNets(torch.nn.Module):
     def _layer_operands(self, w: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """A hidden layer's weights and biases as its units take them: doubled for ``2 σ(2 z) − 1``."""
         return (2.0 * w, 2.0 * b) if self.logistic_tanh else (w, b)
+
+    def _activate(self, pre: torch.Tensor, *, keep_sigmoid: bool) -> torch.Tensor:
+        """The units' outputs from their pre-activations (as :meth:`_layer_operands` takes them),
+        in place; with ``keep_sigmoid`` the last step of ``2 σ − 1`` goes into a new tensor, as
+        autograd needs the sigmoid's output for its backward."""
+        if not self.tanh_units:
+            return pre.sigmoid_()
+        if not self.logistic_tanh:
+            return pre.tanh_()
+        s = pre.sigmoid_()
+        return (s.mul(2.0) if keep_sigmoid else s.mul_(2.0)).sub_(1.0)
 
     def _activation_backward(self, grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
         """Gradient before the activation from the one after it and the activation's output: the
