@@ -49,6 +49,17 @@ def test_beamlets_evaluated_block_by_block_give_the_same_bits(monkeypatch):
         assert np.array_equal(a, b)
 
 
+def test_beamlets_tested_block_by_block_may_light_the_same_points(monkeypatch):
+    rng = np.random.default_rng(9)
+    beams = _beamlets(rng)
+    x = np.column_stack([rng.uniform(-0.07, 0.07, 5000), rng.normal(0, 5e-3, 5000), np.zeros(5000)])
+    reach_m = rng.uniform(0.0, 2e-3, 5000)
+    whole = beams.may_light(x, reach_m)
+    assert 0 < whole.mean() < 1
+    monkeypatch.setattr(laser, "_EVAL_BLOCK", 97)
+    assert np.array_equal(whole, beams.may_light(x, reach_m))
+
+
 def test_beamlets_sum_every_landing_within_its_reach():
     rng = np.random.default_rng(8)
     beams = _beamlets(rng, m=120)

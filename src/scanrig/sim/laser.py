@@ -27,6 +27,7 @@ from functools import cached_property
 import numpy as np
 
 from scanrig.errors import InputError
+from scanrig.sim.beamlet_groups import merge_overlapping
 
 #: Offset of secondary ray origins off the surface, metres (well above float32 hit noise).
 SURFACE_EPS_M = 1e-5
@@ -36,9 +37,9 @@ FOOTPRINT_RADII = 3.0
 MIN_COS_FOOTPRINT = 0.1
 #: Beamlet sets up to this size are evaluated densely; larger ones only near their landings.
 _MAX_DENSE_BEAMS = 8
-#: Ratio of the largest to the smallest reach of a class of beamlets (GaussianBeams.may_light).
+#: Ratio of the largest to the smallest reach of a class of beamlets (GaussianBeams._pairs).
 _REACH_CLASS_RATIO = 1.25
-#: Points per block in GaussianBeams.evaluate (its (point, beam) scratch arrays stay in the CPU cache).
+#: Points per block in GaussianBeams.evaluate and may_light (their (point, beam) scratch arrays stay in the CPU cache).
 _EVAL_BLOCK = 8192
 #: Fan samples cast per stripe frame (render windows, secondary beamlets) and written to truth.
 N_FAN_SAMPLES = 2048
@@ -163,13 +164,14 @@ class GaussianBeams:
             classes.append((cKDTree(self.landing[members]), members, float(self.reach_m[members].max())))
         return classes
 
-    def _pairs(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _pairs(self, x: np.ndarray, reach_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The (point, beam) pairs worth evaluating at points ``x`` (N, 3), sorted by point, then beam.
 
         Few beams (or the laser head's): every pair. Beamlets evaluated near their landings: each
-        beamlet at every point within its own reach of its landing, found class by class of
-        similar reach (:meth:`_reach_classes`) by a search of the points' tree against the class's,
-        within the class's largest reach.
+        beamlet at every point within its own reach of its landing (plus the point's own
+        ``reach_m`` (N,), default 0), found class by class of similar reach
+        (:meth:`_reach_classes`) by a search of the points' tree against the class's, within the
+        class's largest reach.
 
         Returns
         -------
@@ -181,11 +183,13 @@ class GaussianBeams:
         if self.landing is None or m <= _MAX_DENSE_BEAMS:
             return np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
         points = cKDTree(x)
+        extra_m = 0.0 if reach_m is None else reach_m.max(initial=0.0)
         keys = []
         for tree, members, top_m in self._reach_classes:
-            near = points.sparse_distance_matrix(tree, top_m, output_type="ndarray")
+            near = points.sparse_distance_matrix(tree, top_m + extra_m, output_type="ndarray")
             beam = members[near["j"]]
-            within = near["v"] <= self.reach_m[beam]
+            gap_m = near["v"] if reach_m is None else near["v"] - reach_m[near["i"]]
+            within = gap_m <= self.reach_m[beam]
             keys.append(near["i"][within].astype(np.int64) * m + beam[within])
         # one sort of point-major keys: the pairs' order, hence every sum over them, does not
         # depend on the search's order (nor on how the points are cut into blocks)
@@ -198,8 +202,8 @@ class GaussianBeams:
 
     def may_light(self, x: np.ndarray, reach_m: np.ndarray) -> np.ndarray:
         """False where no point within ``reach_m`` of ``x`` gets light from these beams above the
-        footprint cut (:data:`FOOTPRINT_RADII` radii off every axis; for beamlets evaluated only
-        near their landings: no landing within its reach).
+        footprint cut (:data:`FOOTPRINT_RADII` radii off every axis; beamlets evaluated only
+        near their landings light nothing beyond their reach of it).
 
         Parameters
         ----------
@@ -212,23 +216,19 @@ class GaussianBeams:
         -------
         ndarray of shape (N,), bool
         """
-        m = len(self.power_W)
-        if self.landing is None or m <= _MAX_DENSE_BEAMS:
-            rel = x[:, None, :] - self.origin[None]                       # (N, M, 3)
-            z = np.einsum("nmj,mj->nm", rel, self.direction)
-            rho = np.sqrt(np.maximum(np.einsum("nmj,nmj->nm", rel, rel) - z * z, 0.0))
-            r = reach_m[:, None]
+        may = np.empty(len(x), dtype=bool)
+        # blocks of points, as in evaluate: the (point, beam) pairs' memory stays bounded
+        for s in range(0, len(x), _EVAL_BLOCK):
+            e = min(len(x), s + _EVAL_BLOCK)
+            point, beam = self._pairs(x[s:e], reach_m[s:e])
+            rel = np.take(x[s:e], point, axis=0) - np.take(self.origin, beam, axis=0)
+            z = np.einsum("ij,ij->i", rel, np.take(self.direction, beam, axis=0))
+            rho = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - z * z, 0.0))
+            r = reach_m[s:e][point]
             # the radius is convex in z: its largest value within the reach is at an end
-            w = np.maximum(self.radius(z - r), self.radius(z + r))
-            return ((z + r > 0) & (rho - r <= FOOTPRINT_RADII * w)).any(axis=1)
-        # A beamlet lights a point within the reach only if it lands within its own reach plus
-        # the point's. In each class of beamlets of similar reach (_reach_classes) the nearest
-        # landing is tested against the class's largest reach.
-        may = np.zeros(len(x), dtype=bool)
-        for tree, _, top_m in self._reach_classes:
-            open_ = np.flatnonzero(~may)
-            dist, _ = tree.query(x[open_], distance_upper_bound=top_m + reach_m.max(initial=0.0))
-            may[open_] = dist - reach_m[open_] <= top_m
+            w = np.maximum(self.radius(z - r, beam), self.radius(z + r, beam))
+            lit = (z + r > 0) & (rho - r <= FOOTPRINT_RADII * w)
+            may[s:e] = np.bincount(point[lit], minlength=e - s) > 0
         return may
 
     def evaluate(self, x: np.ndarray):
@@ -422,7 +422,9 @@ def trace_laser(pose: BeamPose, spec: LaserSpec, scene) -> LaserTrace:
             reach = FOOTPRINT_RADII * w2 / np.maximum(cos2, MIN_COS_FOOTPRINT)
             landed = {f.name: getattr(beamlets, f.name)[ok2] for f in dataclasses.fields(beamlets)
                       if getattr(beamlets, f.name) is not None}
-            trace.sources.append(GaussianBeams(**landed, landing=q, reach_m=reach))
+            landed = merge_overlapping({**landed, "landing": q, "reach_m": reach}, keep[shiny][ok2],
+                                       hits.obj[ok][shiny][ok2], h2.obj[ok2])
+            trace.sources.append(GaussianBeams(**landed))
             sel2 = (keep[shiny][ok2] % truth_stride) == 0
             truth.append(q[sel2])
             kinds += ["secondary"] * int(sel2.sum())
