@@ -57,8 +57,7 @@ def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.nda
     z = np.einsum("ij,ij->i", landing - beamlets["origin"], beamlets["direction"])
     sigma_m = 0.5 * beamlets["waist_m"] * np.hypot(1.0, (z - beamlets["focus_m"]) / beamlets["rayleigh_m"])
     step = np.linalg.norm(np.diff(landing, axis=0), axis=1) / np.minimum(sigma_m[1:], sigma_m[:-1])   # (M-1,)
-    direction = beamlets["direction"]
-    turn = np.linalg.norm(np.diff(direction, axis=0), axis=1)          # angle between neighbours, rad
+    turn = np.linalg.norm(np.diff(beamlets["direction"], axis=0), axis=1)   # angle between neighbours, rad
     spread = beamlets["waist_m"] / beamlets["rayleigh_m"]               # far-field half-angle, rad
     apart = ((np.diff(fan_index) != 1) | (np.diff(emitter_obj) != 0) | (np.diff(landing_obj) != 0)
              | ~(step <= 1.0) | ~(turn <= np.minimum(spread[1:], spread[:-1])))
@@ -70,9 +69,10 @@ def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.nda
     starts = np.flatnonzero(np.concatenate([[True], apart | (np.diff(cell) != 0)]))
     if len(starts) == m:
         return beamlets
+    size = np.diff(np.append(starts, m))
     power = beamlets["power_W"]
     group_power = np.add.reduceat(power, starts)
-    weight = (power / np.repeat(group_power, np.diff(np.append(starts, m))))
+    weight = power / np.repeat(group_power, size)
 
     def weighted_mean(values):
         return np.add.reduceat(values * (weight if values.ndim == 1 else weight[:, None]), starts, axis=0)
@@ -82,7 +82,6 @@ def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.nda
     for name in _UNIT_MEANS:
         mean = weighted_mean(beamlets[name])
         merged[name] = mean / np.linalg.norm(mean, axis=1, keepdims=True)
-    size = np.diff(np.append(starts, m))
     off_m = np.linalg.norm(landing - np.repeat(merged["landing"], size, axis=0), axis=1)
     merged["reach_m"] = np.maximum.reduceat(beamlets["reach_m"] + off_m, starts)
     return merged
