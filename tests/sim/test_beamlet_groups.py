@@ -26,7 +26,8 @@ def _line(spacing_m: float, m: int = 200) -> dict:
 
 def _merge(beamlets: dict, fan_index=None, emitter_obj=None, landing_obj=None) -> dict:
     m = len(beamlets["power_W"])
-    return merge_overlapping(beamlets, np.arange(m) if fan_index is None else fan_index,
+    # each lands at its waist
+    return merge_overlapping(beamlets, beamlets["waist_m"], np.arange(m) if fan_index is None else fan_index,
                              np.zeros(m, int) if emitter_obj is None else emitter_obj,
                              np.zeros(m, int) if landing_obj is None else landing_obj)
 

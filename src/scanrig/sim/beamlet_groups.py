@@ -29,7 +29,7 @@ _MEANS = ("origin", "waist_m", "focus_m", "rayleigh_m", "landing")
 _UNIT_MEANS = ("direction", "emitter_normal")
 
 
-def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.ndarray,
+def merge_overlapping(beamlets: dict, radius_m: np.ndarray, fan_index: np.ndarray, emitter_obj: np.ndarray,
                       landing_obj: np.ndarray) -> dict:
     """Merge the groups of overlapping beamlets of one stripe (see the module docstring).
 
@@ -39,6 +39,8 @@ def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.nda
         :class:`~scanrig.sim.laser.GaussianBeams` fields of ``M`` landed beamlets in fan order:
         ``origin, direction, emitter_normal, landing`` (M, 3); ``waist_m, focus_m, rayleigh_m,
         power_W, reach_m`` (M,).
+    radius_m : ndarray of shape (M,)
+        Each beamlet's 1/e² radius where it lands, metres.
     fan_index : ndarray of shape (M,), int
         Each beamlet's fan sample, increasing: beamlets are neighbours when theirs differ by one.
     emitter_obj, landing_obj : ndarray of shape (M,), int
@@ -54,8 +56,7 @@ def merge_overlapping(beamlets: dict, fan_index: np.ndarray, emitter_obj: np.nda
     m = len(landing)
     if m < 2:
         return beamlets
-    z = np.einsum("ij,ij->i", landing - beamlets["origin"], beamlets["direction"])
-    sigma_m = 0.5 * beamlets["waist_m"] * np.hypot(1.0, (z - beamlets["focus_m"]) / beamlets["rayleigh_m"])
+    sigma_m = 0.5 * radius_m
     step = np.linalg.norm(np.diff(landing, axis=0), axis=1) / np.minimum(sigma_m[1:], sigma_m[:-1])   # (M-1,)
     turn = np.linalg.norm(np.diff(beamlets["direction"], axis=0), axis=1)   # angle between neighbours, rad
     spread = beamlets["waist_m"] / beamlets["rayleigh_m"]               # far-field half-angle, rad

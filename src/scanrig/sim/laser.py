@@ -196,6 +196,13 @@ class GaussianBeams:
         key = np.sort(np.concatenate(keys))
         return key // m, key % m
 
+    def _axis_coordinates(self, x: np.ndarray, point: np.ndarray, beam: np.ndarray):
+        """Distance ``z`` along each pair's beam axis from its origin and squared distance ``rho²``
+        from that axis (may round below zero), both (p,), of the (point, beam) pairs of ``x``."""
+        rel = np.take(x, point, axis=0) - np.take(self.origin, beam, axis=0)            # (p, 3)
+        z = np.einsum("ij,ij->i", rel, np.take(self.direction, beam, axis=0))
+        return z, np.einsum("ij,ij->i", rel, rel) - z * z
+
     def radius(self, z: np.ndarray, idx=slice(None)) -> np.ndarray:
         """1/e² radius at distance ``z`` along the axis (broadcast over beams ``idx``)."""
         return self.waist_m[idx] * np.sqrt(1.0 + ((z - self.focus_m[idx]) / self.rayleigh_m[idx]) ** 2)
@@ -221,9 +228,8 @@ class GaussianBeams:
         for s in range(0, len(x), _EVAL_BLOCK):
             e = min(len(x), s + _EVAL_BLOCK)
             point, beam = self._pairs(x[s:e], reach_m[s:e])
-            rel = np.take(x[s:e], point, axis=0) - np.take(self.origin, beam, axis=0)
-            z = np.einsum("ij,ij->i", rel, np.take(self.direction, beam, axis=0))
-            rho = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - z * z, 0.0))
+            z, rho2 = self._axis_coordinates(x[s:e], point, beam)
+            rho = np.sqrt(np.maximum(rho2, 0.0))
             r = reach_m[s:e][point]
             # the radius is convex in z: its largest value within the reach is at an end
             w = np.maximum(self.radius(z - r, beam), self.radius(z + r, beam))
@@ -269,9 +275,7 @@ class GaussianBeams:
         """
         n = len(x)
         point, beam = self._pairs(x)                                      # (p,), point-sorted
-        rel = np.take(x, point, axis=0) - np.take(self.origin, beam, axis=0)            # (p, 3)
-        z_pair = np.einsum("ij,ij->i", rel, np.take(self.direction, beam, axis=0))
-        rho2 = np.einsum("ij,ij->i", rel, rel) - z_pair * z_pair
+        z_pair, rho2 = self._axis_coordinates(x, point, beam)
         w = self.radius(z_pair, beam)
         inten_pair = 2 * self.power_W[beam] / (np.pi * w * w) * np.exp(-2 * rho2 / (w * w))
         inten_pair[z_pair <= 0] = 0.0
@@ -422,10 +426,11 @@ def trace_laser(pose: BeamPose, spec: LaserSpec, scene) -> LaserTrace:
             reach = FOOTPRINT_RADII * w2 / np.maximum(cos2, MIN_COS_FOOTPRINT)
             landed = {f.name: getattr(beamlets, f.name)[ok2] for f in dataclasses.fields(beamlets)
                       if getattr(beamlets, f.name) is not None}
-            landed = merge_overlapping({**landed, "landing": q, "reach_m": reach}, keep[shiny][ok2],
+            fan = keep[shiny][ok2]
+            landed = merge_overlapping({**landed, "landing": q, "reach_m": reach}, w2, fan,
                                        hits.obj[ok][shiny][ok2], h2.obj[ok2])
             trace.sources.append(GaussianBeams(**landed))
-            sel2 = (keep[shiny][ok2] % truth_stride) == 0
+            sel2 = (fan % truth_stride) == 0
             truth.append(q[sel2])
             kinds += ["secondary"] * int(sel2.sum())
             fp_pts.append(q)
