@@ -57,3 +57,12 @@ def test_interrupt_prints_interrupted_and_exits_130(monkeypatch, tmp_path, capsy
 def test_console_script_runs_as_module():
     out = subprocess.run([sys.executable, "-m", "scanrig", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.startswith("scanrig ")
+
+
+@pytest.mark.parametrize("argv, status", [(["--version"], 0), (["detect"], 2)])
+def test_console_script_runs_exit_handlers_flushes_and_exits_with_the_status(argv, status):
+    code = ("import atexit, sys; atexit.register(lambda: print('handler ran', flush=True)); "
+            "from scanrig.cli.main import run; print('buffered', end=''); run(sys.argv[1:])")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
+    assert out.returncode == status, out.stderr
+    assert out.stdout.startswith("buffered") and out.stdout.endswith("handler ran\n")

@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 
-from scanrig.cli.main import main
+from scanrig.cli.main import run
 from scanrig.laser import session_detect
 
 if __name__ == "__main__":
@@ -32,4 +32,4 @@ if __name__ == "__main__":
             return run_job(job)
 
         session_detect._run_job = held_job
-    sys.exit(main(["detect", sys.argv[1], "--mode", "spot", "--resume"]))
+    run(["detect", sys.argv[1], "--mode", "spot", "--resume"])

@@ -10,10 +10,13 @@ Exit status: 0 success; 2 bad input (one line naming the file or argument); 1 in
 
 from __future__ import annotations
 
+import atexit
 import importlib
+import os
 import pkgutil
 import sys
 import traceback
+from typing import NoReturn
 
 import typer
 
@@ -108,6 +111,20 @@ def main(argv: list[str] | None = None) -> int:
     return status if isinstance(status, int) else 0
 
 
-def run() -> None:
-    """Console-script entry point."""
-    sys.exit(main())
+def run(argv: list[str] | None = None) -> NoReturn:
+    """Console-script entry point: run :func:`main` and end the process with its status.
+
+    Python's exit handlers run and the standard streams are flushed, as at a normal exit; the
+    interpreter's own teardown is skipped. In it, Arrow's native thread pools (Parquet) can abort a
+    process whose work is done ("terminate called without an active exception", exit 134;
+    apache/arrow#34314), which a script would read as a failed scan. Every file scanrig writes is
+    closed before ``main`` returns, so nothing is lost.
+    """
+    status = main(argv)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe or stream: nothing more can reach it
+            pass
+    os._exit(status)
