@@ -36,6 +36,7 @@ from scanrig.sim.colour import (
     processed,
     stored,
 )
+from scanrig.sim.flat_edges import NORMAL_TOL, FlatHits, planar_pixels, plane_points
 from scanrig.sim.laser import SURFACE_EPS_M, LaserTrace, reflect
 from scanrig.sim.lit_pixels import lit_pixels
 from scanrig.sim.materials import specular_lobe
@@ -111,29 +112,40 @@ class CameraView:
         """Noise-free laser-free image in electrons, shape (H, W), float32 (after the PSF)."""
         cam, table = self.camera, self.ray_table
         xy = table.xy.reshape(-1, 2)
-        radiance, obj = self._radiance_blocks(len(xy), lambda a, b: table.to_world(xy[a:b]))
+        flat = FlatHits.empty(len(xy))
+        radiance, obj = self._radiance_blocks(len(xy), lambda a, b: table.to_world(xy[a:b]), flat=flat)
         radiance = radiance.reshape(cam.height, cam.width)
         obj = obj.reshape(cam.height, cam.width)
         s, sigma_px = self.sensor.supersampling, self.sensor.psf_sigma_px
         idx = np.flatnonzero(_edges(radiance, obj)) if s > 1 else np.zeros(0, dtype=np.int64)
         centres = np.column_stack([idx % cam.width, idx // cam.width]).astype(np.float64)
         offsets = edge_sample_offsets(centres, s)                  # (2, n, s²), made once
+        sub = np.empty((idx.size, s * s))
+        planar = planar_pixels(idx, obj, flat)
         # blocks of whole pixels (s² samples each)
         per = max(1, _BLOCK // (s * s))
 
-        def sub_rays(a, b):
-            pixels = slice(a // (s * s), b // (s * s))
-            u = centres[pixels, 0, None] + offsets[0, pixels]
-            v = centres[pixels, 1, None] + offsets[1, pixels]
-            return table.rays_uv(u.ravel(), v.ravel())[1]
+        def sub_rays(pixels):
+            return table.rays_uv((centres[pixels, 0, None] + offsets[0, pixels]).ravel(),
+                                 (centres[pixels, 1, None] + offsets[1, pixels]).ravel())[1]
 
-        sub = self._radiance_blocks(idx.size * s * s, sub_rays, block=per * s * s)[0]
+        cast = np.flatnonzero(~planar)
+        sub[cast] = self._radiance_blocks(cast.size * s * s, lambda a, b: sub_rays(cast[a // (s * s):b // (s * s)]),
+                                          block=per * s * s)[0].reshape(-1, s * s)
+        shading, on_plane = _BackgroundShading(self.scene), np.flatnonzero(planar)
+        for a in range(0, on_plane.size, per):
+            pixels = on_plane[a:a + per]
+            centre = idx[pixels]
+            points = plane_points(table.origin, sub_rays(pixels).reshape(pixels.size, s * s, 3),
+                                  flat.normal[centre], flat.offset_m[centre]).reshape(-1, 3)
+            sub[pixels] = shading.matte(np.repeat(obj.ravel()[centre], s * s), points,
+                                        np.repeat(flat.lamp_W_m2[centre], s * s)).reshape(-1, s * s)
         e_per_radiance = self.sensor.e_per_radiance
         if sigma_px == 0:
-            radiance.ravel()[idx] = sub.reshape(idx.size, s * s).mean(axis=1)
+            radiance.ravel()[idx] = sub.mean(axis=1)
             return (radiance * e_per_radiance).astype(np.float32)
         # The PSF acts on the optical image before the pixels integrate it (pixel_integration).
-        return integrate_pixels(radiance * e_per_radiance, idx, offsets, sub * e_per_radiance, s, sigma_px)
+        return integrate_pixels(radiance * e_per_radiance, idx, offsets, sub.ravel() * e_per_radiance, s, sigma_px)
 
     @cached_property
     def noise(self) -> NoiseField | ColourNoise:
@@ -148,9 +160,11 @@ class CameraView:
         """Laser-free radiance along camera rays from ``origin`` (3,), and the object hit (-1 on a miss)."""
         return self._radiance_blocks(len(dirs), lambda a, b: dirs[a:b], origin=origin)
 
-    def _radiance_blocks(self, n: int, dirs_of, origin: np.ndarray | None = None, block: int | None = None):
+    def _radiance_blocks(self, n: int, dirs_of, origin: np.ndarray | None = None, block: int | None = None,
+                         flat: FlatHits | None = None):
         """:meth:`_radiance_background` of ``n`` camera rays whose directions ``dirs_of(a, b)`` gives
-        for rays ``a:b``, block by block (every scratch array stays in the CPU cache)."""
+        for rays ``a:b``, block by block (every scratch array stays in the CPU cache); ``flat``
+        (of ``n`` rays), when given, receives their flat hits."""
         origin = self.ray_table.origin if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
         block = block or _BLOCK
         radiance = np.empty(n)
@@ -158,7 +172,7 @@ class CameraView:
         shading = _BackgroundShading(self.scene)
         for a in range(0, n, block):
             b = min(n, a + block)
-            radiance[a:b], obj[a:b] = shading.radiance(origin, dirs_of(a, b))
+            radiance[a:b], obj[a:b] = shading.radiance(origin, dirs_of(a, b), flat, a)
         return radiance, obj
 
     def _surface(self, obj: np.ndarray, p: np.ndarray):
@@ -336,8 +350,9 @@ class _BackgroundShading:
         self.spec = np.array([m.specular for m in self.materials])
         self.rough = np.array([m.roughness_rad for m in self.materials])
 
-    def radiance(self, origin: np.ndarray, dirs: np.ndarray):
-        """Radiance along rays ``origin`` (3,) + t ``dirs`` (n, 3), and the object hit (-1 on a miss)."""
+    def radiance(self, origin: np.ndarray, dirs: np.ndarray, flat: FlatHits | None = None, first: int = 0):
+        """Radiance along rays ``origin`` (3,) + t ``dirs`` (n, 3), and the object hit (-1 on a miss);
+        ``flat``, when given, receives the rays' flat hits as its rays ``first:first + n``."""
         n_rays = len(dirs)
         idx, hits = self.caster.first_hits(origin, dirs)
         radiance = np.full(n_rays, self.backdrop)
@@ -348,6 +363,7 @@ class _BackgroundShading:
         albedo = _albedo(self.materials, o, p)
         out = albedo + self.spec[o] if self.spec.any() else albedo.copy()
         out *= self.ambient
+        e_lamp = np.zeros(idx.size)
         if self.lamp_W_m2 > 0:
             lamp_dir = self.lamp_dir
             cos_l = n @ -lamp_dir
@@ -369,11 +385,26 @@ class _BackgroundShading:
                 mirror = reflect(np.broadcast_to(lamp_dir, (len(shiny), 3)), n[shiny])
                 out[shiny] += self.spec[o[shiny]] * e_lamp[shiny] * specular_lobe(
                     np.einsum("ij,ij->i", mirror, view), self.rough[o[shiny]])
+        if flat is not None:
+            rows = first + idx
+            plane = (self.spec[o] == 0) & (np.abs(n - ng) <= NORMAL_TOL).all(axis=1)
+            flat.normal[rows] = ng
+            flat.offset_m[rows] = np.where(plane, np.einsum("ij,ij->i", ng, p), np.nan)
+            flat.lamp_W_m2[rows] = e_lamp
         if idx.size == n_rays:
             return out, o
         radiance[idx] = out
         obj[idx] = o
         return radiance, obj
+
+    def matte(self, obj: np.ndarray, p: np.ndarray, lamp_W_m2: np.ndarray) -> np.ndarray:
+        """Radiance of matte hits of objects ``obj`` (n,) at ``p`` (n, 3) under lamp irradiance
+        ``lamp_W_m2`` (n,), computed as :meth:`radiance` computes it."""
+        albedo = _albedo(self.materials, obj, p)
+        out = albedo * self.ambient
+        if self.lamp_W_m2 > 0:
+            out += albedo * lamp_W_m2 / np.pi
+        return out
 
 
 def _albedo(materials, obj: np.ndarray, p: np.ndarray) -> np.ndarray:
