@@ -5,6 +5,8 @@ a naive baseline measured in the same run:
 
 * laser-free frame (default scene, 1280x1024): adaptive edge supersampling vs supersampling
   every pixel (the obvious way to integrate pixels);
+* calibration shot (the cube in the default room, 8x8 rays per edge pixel): edge pixels on one
+  flat, matte, evenly lit plane met in closed form vs every edge pixel's rays cast;
 * laser frame: rendering only the window the trace can touch (plus fast full-frame noise) vs
   re-rendering the whole frame with the laser;
 * stripe frame (the demo's sweep of 100 upright sheets, every tenth; one camera): sub-pixel rays
@@ -22,6 +24,7 @@ import argparse
 import shutil
 import tempfile
 import time
+from unittest import mock
 
 import numpy as np
 
@@ -33,6 +36,8 @@ from scanrig.sim import (
     simulate_session,
     trace_laser,
 )
+from scanrig.sim import render
+from scanrig.sim.calibration_shots import calibration_sensor, default_target, random_pose, target_scene
 from scanrig.sim.render import _subpixel_samples
 
 _CPU: dict = {}   # figure -> CPU seconds of this process (a load-independent view of one core)
@@ -77,6 +82,17 @@ def main() -> None:
     view.ray_table.xy  # noqa: B018 - same solve as the measured path; not the point of the baseline
     t_full = _timed(lambda: view._radiance_background(*view.ray_table.rays(sub))) / frac
     rows.append(("laser-free frame 1280x1024", t_bg, 2.0, f"all pixels {s}x{s}", t_full))
+
+    # 1b. calibration shot: the same image, with and without the closed-form rays on planes
+    target = default_target("cube")
+    shot = target_scene(target, random_pose(target, rig, scene.center_m, scene.radius_m, np.random.default_rng(0),
+                                            scene.rig.cover_field), scene)
+    shot_key = "calibration shot (cube) 1280x1024"
+    shot_view = lambda: CameraView(cam, shot, calibration_sensor(scene)).background_e  # noqa: E731
+    t_shot = _timed(shot_view, repeat=3, cpu_key=shot_key)
+    with mock.patch.object(render, "planar_pixels", lambda pixels, obj, hits: np.zeros(pixels.size, bool)):
+        t_cast = _timed(shot_view, repeat=1 if args.quick else 3, cpu_key="every edge ray cast")
+    rows.append((shot_key, t_shot, None, "every edge ray cast", t_cast))   # no target: a speed-up
 
     # 2. laser frame
     view = CameraView(cam, scene, rng=np.random.default_rng(0))
@@ -140,11 +156,14 @@ def main() -> None:
     print(f"{'figure':<38} {'wall':>9} {'cpu':>9} {'target':>9} {'baseline':>30} {'baseline/wall':>14}")
     for name, t, target_s, base_name, t_base in rows:
         cpu = f"{_CPU[name]:.3f}s" if name in _CPU else "n/a"
-        print(f"{name:<38} {t:>8.3f}s {cpu:>9} {target_s:>8.3f}s {base_name + f' {t_base:.3f}s':>30} "
+        target_text = "-" if target_s is None else f"{target_s:.3f}s"
+        print(f"{name:<38} {t:>8.3f}s {cpu:>9} {target_text:>9} {base_name + f' {t_base:.3f}s':>30} "
               f"{t_base / t:>13.1f}x")
     print("wall = elapsed time (other work on the machine slows it down); cpu = this process's CPU time")
     print(f"stripe frame CPU: {_CPU[stripe_key]:.3f} s; the laser's radiance alone at every sub-pixel sample of the window: "
           f"{_CPU['every window pixel']:.3f} s ({_CPU['every window pixel'] / _CPU[stripe_key]:.1f}x)")
+    print(f"calibration shot CPU: {_CPU[shot_key]:.3f} s; every edge ray cast: {_CPU['every edge ray cast']:.3f} s "
+          f"({_CPU['every edge ray cast'] / _CPU[shot_key]:.2f}x)")
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@ Image formation, in order (all linear until the sensor):
 
 1. radiance of every pixel from rays through its centre; pixels that differ from a neighbour
    (object boundary, shadow or texture edge: :data:`EDGE_CONTRAST`) are re-rendered as the mean
-   of ``s × s`` sub-pixel rays (pixel integration where it matters);
+   of ``s × s`` sub-pixel rays (pixel integration where it matters), met in closed form where the
+   pixel lies on one flat, matte, evenly lit plane (:mod:`scanrig.sim.flat_edges`);
 2. electrons = radiance × :attr:`Sensor.e_per_radiance`, then the Gaussian lens PSF;
 3. a laser frame adds the laser's electrons only in a window around the projected footprints:
    in the window's pixels that the laser may light (one ray through each centre decides,
