@@ -58,10 +58,13 @@ def test_any_starting_pose_is_found(mesh):
 
 
 @pytest.mark.slow
-def test_multistart_fallback_without_open3d(mesh, monkeypatch):
+@pytest.mark.parametrize("seed, n_points, outlier_fraction", [(3, 20_000, 0.3), (1, 40_000, 0.1)])
+def test_multistart_fallback_without_open3d(mesh, monkeypatch, seed, n_points, outlier_fraction):
+    """Without the open3d extra (as installed by ``.[all]``); seed 1 is the acceptance's, on which
+    40 random starts missed the pose by 43 mm."""
     monkeypatch.setattr(coarse, "_open3d", lambda: None)
-    scan = synth.scan_of(mesh, np.random.default_rng(3), 20_000, outlier_fraction=0.3)
-    result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M, seed=3)
+    scan = synth.scan_of(mesh, np.random.default_rng(seed), n_points, outlier_fraction=outlier_fraction)
+    result = inspect_cloud(scan.points_m, mesh, tolerance_m=TOLERANCE_M, seed=seed)
     assert result.alignment.method == "multistart + robust ICP"
     assert synth.alignment_error_m(scan, result.cad_from_cloud) <= ALIGNMENT_TOL_M
 

@@ -87,10 +87,14 @@ def tukey_weights(residual_m: np.ndarray, floor_m: float = 0.0) -> np.ndarray:
 
 
 def trimmed_weights(keep: float) -> WeightFn:
-    """Weights 1 for the ``keep`` fraction of the points closest to the surface, 0 for the rest."""
+    """Weights 1 for the ``keep`` fraction of the points closest to the surface, 0 for the rest
+    (and for points with no surface within the search bound, whose residual is infinite)."""
     def weights(residual_m: np.ndarray) -> np.ndarray:
         a = np.abs(residual_m)
-        return (a <= np.quantile(a, keep)).astype(np.float64)
+        finite = np.isfinite(a)
+        # infinite residuals rank last: the quantile of the finite ones never reads inf - inf
+        cut = np.quantile(np.where(finite, a, np.finfo(np.float64).max), keep)
+        return ((a <= cut) & finite).astype(np.float64)
     return weights
 
 
@@ -128,7 +132,9 @@ def robust_icp(points_m: np.ndarray, index: CadIndex, cad_from_cloud: np.ndarray
     for iterations in range(1, max_iterations + 1):
         p = points_m @ R.T + t
         r, w, normal = _weighted_residuals(p, index, weight_fn, bound_m)
-        centre = np.average(p, axis=0, weights=w) if w.sum() > 0 else p.mean(axis=0)
+        if not (w > 0).any():   # no point within the search bound of the surface: nothing to fit
+            break
+        centre = np.average(p, axis=0, weights=w)
         # rotate about the weighted centre, so that rotation and translation decouple
         jac = np.hstack([np.cross(p - centre, normal), normal])           # d r / d(omega, dt)
         a = (jac * w[:, None]).T @ jac
