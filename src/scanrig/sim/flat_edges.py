@@ -5,9 +5,8 @@ texture edges: a printed square or marker of a calibration board, a floor's patt
 pixel and its eight neighbours all see the same plane of one matte object, with the same lamp
 light (no shadow boundary, flat shading), every ray through the pixel meets that plane and its
 shading differs only by the albedo there. Those rays are intersected with the plane in closed
-form, and the lamp light of the centre ray is reused: no ray-triangle search and no shadow rays
-(these were about three quarters of a calibration shot's time; the ray casting and shading
-itself is embree's and :class:`~scanrig.sim.render.CameraView`'s).
+form, and the lamp light of the centre ray is reused: no ray-triangle search and no shadow rays,
+which were about three quarters of a calibration shot's time.
 
 An edge of another surface or of a shadow that crosses the pixel puts a neighbour's centre on its
 other side (the neighbours are one pixel away, the crossing within half a pixel of the centre),
