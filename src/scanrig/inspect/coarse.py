@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from scanrig.errors import InputError
 from scanrig.inspect.closest import CadIndex
-from scanrig.inspect.icp import robust_icp, trimmed_weights
+from scanrig.inspect.icp import icp_trials, robust_icp, trimmed_weights
 
 #: The coarse search sees at most this many points of the cloud (a random subsample).
 COARSE_POINTS = 40_000
@@ -182,14 +182,13 @@ def _multistart(points_m, index, size_m, rng) -> list[np.ndarray]:
     rotations += list(Rotation.random(RANDOM_STARTS, random_state=rng).as_matrix())
     cad_centre = index.sample_m.mean(axis=0)
     cloud_centre = np.median(points_m, axis=0)
-    scored = []
-    for R in rotations:
-        start = np.eye(4)
-        start[:3, :3], start[:3, 3] = R, cad_centre - R @ cloud_centre
-        fit = robust_icp(trial, index, start, weight_fn=trimmed_weights(TRIM_KEEP), size_m=size_m,
-                         max_iterations=TRIAL_ITERATIONS)
-        moved = trial @ fit.cad_from_cloud[:3, :3].T + fit.cad_from_cloud[:3, 3]
-        d = np.sort(index.nearest_sample_distance(moved))[: int(TRIM_KEEP * len(moved))]
-        scored.append((float(np.sqrt(np.mean(d * d))), fit.cad_from_cloud))
-    scored.sort(key=lambda s: s[0])
-    return [m for _, m in scored[:FINALISTS]]
+    starts = np.broadcast_to(np.eye(4), (len(rotations), 4, 4)).copy()
+    starts[:, :3, :3] = rotations
+    starts[:, :3, 3] = cad_centre - starts[:, :3, :3] @ cloud_centre
+    fits = icp_trials(trial, index, starts, weight_fn=trimmed_weights(TRIM_KEEP), size_m=size_m,
+                      max_iterations=TRIAL_ITERATIONS).cad_from_cloud
+    moved = trial @ fits[:, :3, :3].transpose(0, 2, 1) + fits[:, None, :3, 3]
+    d = np.sort(index.nearest_sample_distance(moved.reshape(-1, 3)).reshape(len(fits), -1), axis=1)
+    d = d[:, : int(TRIM_KEEP * len(trial))]
+    score = np.sqrt(np.mean(d * d, axis=1))
+    return list(fits[np.argsort(score, kind="stable")[:FINALISTS]])
