@@ -14,7 +14,12 @@ Open3D's plain point-to-plane ICP from the identity (what a fit without coarse a
 robust weights gives) on the same 40 000 points against 250 000 CAD samples, its alignment error
 and time.
 
-Run: python benchmarks/bench_inspect.py [n_seeds] [--no-million]
+With ``--multistart``, instead: the CPU time of the multi-start coarse search on seed 1's 40 000
+points (125 starts), its starts iterated together against the same starts' ICP run one after
+the other (the baseline, ``robust_icp`` per start), medians of 3 runs in turn, and the largest
+difference between the poses the two pick.
+
+Run: python benchmarks/bench_inspect.py [n_seeds] [--no-million | --multistart]
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import importlib.util
 import sys
 import tempfile
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +54,38 @@ def baseline_open3d(scan, mesh, seed: int):
             time.process_time() - c0)
 
 
+def multistart(mesh) -> None:
+    """The multi-start search's starts together against one after the other (see the module docstring)."""
+    from unittest import mock
+
+    from scanrig.inspect import coarse
+    from scanrig.inspect.closest import CadIndex
+    from scanrig.inspect.icp import IcpTrials, robust_icp
+    from tests.inspect import synth
+
+    def one_by_one(points_m, index, starts, *, weight_fn, size_m, max_iterations):
+        fits = [robust_icp(points_m, index, start, weight_fn=weight_fn, size_m=size_m, max_iterations=max_iterations)
+                for start in starts]
+        return IcpTrials(np.stack([f.cad_from_cloud for f in fits]), np.full(len(fits), np.nan),
+                         np.stack([np.eye(6)] * len(fits)), np.array([f.iterations for f in fits]))
+
+    scan = synth.scan_of(mesh, np.random.default_rng(1), 40_000, outlier_fraction=0.1)
+    sparse = CadIndex(mesh, np.random.default_rng(1)).sparse(coarse.TRIAL_SAMPLES, np.random.default_rng(2))
+    size_m = float(np.linalg.norm(mesh.extents))
+    cpu = {"together": [], "one after the other": []}
+    poses = {}
+    for rep in range(3):
+        for name in cpu:
+            with mock.patch.object(coarse, "icp_trials", one_by_one) if name != "together" else nullcontext():
+                c0 = time.process_time()
+                poses[name] = coarse._multistart(scan.points_m, sparse, size_m, np.random.default_rng(rep))
+                cpu[name].append(time.process_time() - c0)
+    together, alone = (np.median(cpu[name]) for name in cpu)
+    difference = max(np.abs(a - b).max() for a, b in zip(poses["together"], poses["one after the other"]))
+    print(f"multi-start search, 125 starts on {coarse.TRIAL_POINTS} points: together {together:.2f} s CPU, "
+          f"one after the other {alone:.2f} s CPU ({alone / together:.2f}x); poses differ by {difference:.1e}")
+
+
 def main() -> None:
     from scanrig.inspect import inspect_cloud, write_inspection
     from scanrig.report.inspection_page import write_inspection_page
@@ -57,6 +95,9 @@ def main() -> None:
     with open("/proc/loadavg") as f:
         print(f"load average at start: {f.read().split()[0]}")
     mesh = synth.bracket_mesh()
+    if "--multistart" in sys.argv:
+        multistart(mesh)
+        return
     tolerance_m = 1e-4
     for seed in range(n_seeds):
         scan = synth.scan_of(mesh, np.random.default_rng(seed), 40_000)
