@@ -129,7 +129,8 @@ def robust_icp(points_m: np.ndarray, index: CadIndex, cad_from_cloud: np.ndarray
     trial = icp_trials(points_m, index, cad_from_cloud[None], weight_fn=weight_fn, size_m=size_m,
                        max_iterations=max_iterations)
     matrix = trial.cad_from_cloud[0]
-    r, w, _ = _weighted_residuals(points_m @ matrix[:3, :3].T + matrix[:3, 3], index, weight_fn, trial.bound_m[0])
+    r, _ = _plane_residuals(points_m @ matrix[:3, :3].T + matrix[:3, 3], index, trial.bound_m[0])
+    w = weight_fn(r)
     kept = w > 0
     rms = float(np.sqrt(np.sum(w[kept] * r[kept] ** 2) / np.sum(w[kept]))) if kept.any() else float("inf")
     scale = np.r_[np.full(3, 1.0 / size_m), np.ones(3)]
@@ -196,10 +197,8 @@ def icp_trials(points_m: np.ndarray, index: CadIndex, starts: np.ndarray, *, wei
     for iteration in range(1, max_iterations + 1):
         iterations[active] = iteration
         p = points_m @ rotation[active].transpose(0, 2, 1) + shift[active, None]        # (k, N, 3)
-        planes = [index.nearest_planes(q, b) for q, b in zip(p, bound_m[active])]
-        normal = np.stack([n for n, _ in planes])
-        offset = np.stack([o for _, o in planes])
-        r = np.where(np.isfinite(offset), np.einsum("kij,kij->ki", normal, p) - offset, np.inf)
+        residuals = [_plane_residuals(q, index, b) for q, b in zip(p, bound_m[active])]
+        r, normal = np.stack([r for r, _ in residuals]), np.stack([n for _, n in residuals])
         w = weight_fn(r)
         fits = (w > 0).any(axis=1)   # no point within the search bound of the surface: nothing to fit
         if not fits.all():
@@ -231,9 +230,9 @@ def icp_trials(points_m: np.ndarray, index: CadIndex, starts: np.ndarray, *, wei
     return IcpTrials(matrix, bound_m, normal_matrix, iterations)
 
 
-def _weighted_residuals(p, index, weight_fn, bound_m):
-    """Point-to-plane residuals (inf where no surface is within ``bound_m``), weights and normals."""
+def _plane_residuals(p, index, bound_m):
+    """Point-to-plane residuals of points ``p`` (N, 3) (inf where no surface is within ``bound_m``)
+    and the planes' normals (N, 3)."""
     normal, offset = index.nearest_planes(p, bound_m)
     r = np.einsum("ij,ij->i", normal, p) - offset
-    r = np.where(np.isfinite(offset), r, np.inf)
-    return r, weight_fn(r), normal
+    return np.where(np.isfinite(offset), r, np.inf), normal
